@@ -1,0 +1,79 @@
+"""The `ltmap` command: parse, build objects, show progress, report errors in one line.
+
+Subcommands live in ``ltmap_cli.commands.<name>`` and are imported only when invoked, so that
+``ltmap --help`` does not pay for numba, open3d or the log readers. This is the only place that
+turns an ``LtmapError`` into a message and an exit status; nothing below it prints or exits.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+import sys
+
+import click
+
+from . import __version__
+from .errors import LtmapError
+
+# name -> (module, attribute, one-line help shown by `ltmap --help` without importing it)
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "replay": ("ltmap_cli.commands.replay", "replay", "Replay logs through the layered map."),
+    "info": ("ltmap_cli.commands.info", "info", "Show what a log holds and what replay would use."),
+    "build-static": ("ltmap_cli.commands.build_static", "build_static", "Build the static map from a plan."),
+    "diff": ("ltmap_cli.commands.diff", "diff", "Compare two maps cell by cell."),
+    "plan": ("ltmap_cli.commands.plan", "plan", "Plan an A* path on a map."),
+    "simulate": ("ltmap_cli.commands.simulate", "simulate", "Write a simulated log from a scenario."),
+    "demo": ("ltmap_cli.commands.demo", "demo", "Map a synthetic room and write PGM/YAML/PNG."),
+}
+
+
+def _available() -> dict[str, tuple[str, str, str]]:
+    return {n: v for n, v in COMMANDS.items() if importlib.util.find_spec(v[0]) is not None}
+
+
+class LazyGroup(click.Group):
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted(_available())
+
+    def get_command(self, ctx: click.Context, name: str) -> click.Command | None:
+        spec = _available().get(name)
+        if spec is None:
+            return None
+        module = importlib.import_module(spec[0])
+        return getattr(module, spec[1])
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, spec[2]) for name, spec in sorted(_available().items())]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except LtmapError as exc:
+            if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
+                raise
+            click.echo(f"ltmap: error: {exc}", err=True)
+            ctx.exit(exc.exit_code)
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="ltmap")
+@click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
+@click.pass_context
+def cli(ctx: click.Context, debug: bool) -> None:
+    """ltmap: replay robot logs (ROS 1 bags, ROS 2 bags, MCAP) through a layered long-term
+    3D map, and write map_server maps, long-term snapshots and latency measurements."""
+    ctx.ensure_object(dict)
+    ctx.obj["debug"] = debug
+
+
+def main() -> None:
+    cli(prog_name="ltmap")
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,141 @@
+"""The one typed configuration of a run: defaults from the spec, YAML in and out.
+
+``config.yaml`` written with every output holds every effective parameter; ``--config FILE``
+reads the same names back. Unknown keys and wrong types are errors that name the key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from .core.config import MapConfig
+from .errors import ConfigError
+
+
+@dataclass
+class ReplayConfig:
+    fixed_frame: str = ""  # empty: `map` when the log has it, else `odom`
+    snapshot_every: float = 60.0  # s of log time
+    mode: str = "trinary"  # map.pgm mode: trinary | scale
+    scan_topics: list[str] = field(default_factory=list)
+    cloud_topics: list[str] = field(default_factory=list)
+    depth_topics: list[str] = field(default_factory=list)
+    tf: list[str] = field(default_factory=list)  # extra mounts: parent:child=x,y,z,roll,pitch,yaw
+    allow_truncated: bool = False
+
+
+@dataclass
+class Config:
+    map: MapConfig = field(default_factory=MapConfig)
+    replay: ReplayConfig = field(default_factory=ReplayConfig)
+
+    def validate(self) -> None:
+        problems = self.map.validate()
+        if self.replay.mode not in ("trinary", "scale"):
+            problems.append(f"replay.mode must be trinary or scale, got {self.replay.mode!r}")
+        if self.replay.snapshot_every <= 0:
+            problems.append("replay.snapshot_every must be > 0")
+        if problems:
+            raise ConfigError("invalid configuration: " + "; ".join(problems))
+
+
+def to_dict(obj: Any) -> Any:
+    """A dataclass tree as plain dicts and lists (YAML-ready)."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [to_dict(v) for v in obj]
+    return obj
+
+
+def _coerce(value: Any, tp: Any, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        args = [a for a in typing.get_args(tp) if a is not type(None)]
+        if value is None:
+            return None
+        return _coerce(value, args[0], key)
+    if origin is list:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"config key {key} must be a list, got {value!r}")
+        (item_tp,) = typing.get_args(tp) or (Any,)
+        return [_coerce(v, item_tp, f"{key}[{i}]") for i, v in enumerate(value)]
+    if tp is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config key {key} must be true or false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config key {key} must be an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"config key {key} must be a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"config key {key} must be a string, got {value!r}")
+        return value
+    return value
+
+
+def update_from_dict(obj: Any, data: dict, prefix: str = "") -> None:
+    """Set the fields of dataclass ``obj`` from nested ``data``; unknown keys are errors."""
+    if not isinstance(data, dict):
+        raise ConfigError(f"config section {prefix or '(top)'} must be a mapping, got {data!r}")
+    hints = typing.get_type_hints(type(obj))
+    names = {f.name for f in dataclasses.fields(obj)}
+    for key, value in data.items():
+        full = f"{prefix}{key}"
+        if key not in names:
+            raise ConfigError(
+                f"unknown config key {full}; known keys here: {', '.join(sorted(names))}"
+            )
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current):
+            update_from_dict(current, value, prefix=f"{full}.")
+        else:
+            setattr(obj, key, _coerce(value, hints[key], full))
+
+
+def set_dotted(cfg: Config, dotted: str, value: Any) -> None:
+    """Set one parameter by its dotted name (``map.layers.tick``)."""
+    parts = dotted.split(".")
+    nested: dict = {}
+    cur = nested
+    for p in parts[:-1]:
+        cur = cur.setdefault(p, {})
+    cur[parts[-1]] = value
+    update_from_dict(cfg, nested)
+
+
+def load_config(path: str | Path | None = None) -> Config:
+    """Defaults, updated from a YAML file when given."""
+    import yaml
+
+    cfg = Config()
+    if path is None:
+        return cfg
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"config file {p} does not exist; write one with `ltmap replay --dump-config`")
+    try:
+        data = yaml.safe_load(p.read_text()) or {}
+    except yaml.YAMLError as exc:
+        line = getattr(getattr(exc, "problem_mark", None), "line", None)
+        where = f" line {line + 1}" if line is not None else ""
+        raise ConfigError(f"config file {p}{where} is not valid YAML; fix the syntax") from exc
+    update_from_dict(cfg, data)
+    cfg.validate()
+    return cfg
+
+
+def dump_config(cfg: Config) -> str:
+    import yaml
+
+    return yaml.safe_dump(to_dict(cfg), sort_keys=False)

@@ -1,0 +1,47 @@
+"""The project's error classes.
+
+Every failure a user can cause is raised as an ``LtmapError`` subclass whose message is one
+line: what is wrong, where (file, topic, message index, SVG element id) and what to do. The CLI
+turns it into that line on stderr and exit status 2; nothing below the CLI prints or exits.
+One class per package, as rosbags does.
+"""
+
+
+class LtmapError(Exception):
+    """Base class of every error ltmap reports to a user (exit status 2)."""
+
+    exit_code = 2
+
+
+class ConfigError(LtmapError):
+    """A parameter or configuration file is invalid."""
+
+
+class CoreError(LtmapError):
+    """The map core was given inconsistent input (shapes, resolutions, states)."""
+
+
+class InputError(LtmapError):
+    """A file given on the command line is missing, empty or of the wrong kind."""
+
+
+class LogReadError(InputError):
+    """A log (bag / MCAP) cannot be read, or is truncated or corrupt."""
+
+
+class MapFileError(InputError):
+    """A map file (map_server YAML + image, snapshot, state file) cannot be read."""
+
+
+class TransformError(LtmapError):
+    """A transform needed to place sensor frames is missing."""
+
+
+class PlanError(LtmapError):
+    """An SVG floor plan cannot be turned into a static map."""
+
+
+class NoPathError(LtmapError):
+    """The planner found no path (exit status 1, like a search that found nothing)."""
+
+    exit_code = 1
