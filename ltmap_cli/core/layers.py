@@ -1,0 +1,474 @@
+"""The layered map: S (static), O (sensor log-odds), ST (short-term), LT (long-term).
+
+SPEC 2.2. ``LayeredMap.integrate`` fuses one sensor frame into O; ``LayeredMap.end_tick``
+applies the tick rules to every voxel some frame of the tick observed:
+
+- obstacle: O occupied (log-odds > 0) and S has no occupied voxel within ``static_margin``;
+- seen free: O free (log-odds < 0).
+
+ST rises by ``tick / st_rise_s`` for obstacles and falls by ``tick / st_fall_s`` for voxels seen
+free, clamped to [0, 1]; a voxel not observed as an obstacle for ``st_forget_s`` drops to 0.
+A voxel whose ST reaches 1 is set to LT = 1; a voxel with LT > 0 seen free while ST == 0 falls
+by ``tick / lt_fall_s``. A voxel that is not observed keeps its LT value for ever.
+F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+
+from ..errors import CoreError
+from .config import MapConfig
+from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, VoxelGrid, find_block, get_or_add_block, voxel_offset
+from .raycast import (
+    STATUS_DONE,
+    STATUS_NEED_BLOCKS,
+    classify_rays,
+    integrate_kernel,
+)
+
+O_CHANNELS = {"logodds": (np.float32, 0.0), "stamp": (np.int32, 0)}
+D_CHANNELS = {"st": (np.float32, 0.0), "lt": (np.float32, 0.0), "last_obs": (np.int32, -1)}
+SNAP_EPS = 1e-4  # ST / LT within this of 0 or 1 are snapped (float steps such as 0.2/15)
+NO_STATIC = -(1 << 30)
+
+
+def top_k_from_height(height: np.ndarray, resolution: float) -> np.ndarray:
+    """Highest voxel index k whose interval [k r, (k+1) r) meets [0, h); -1 where h <= 0."""
+    h = np.asarray(height, dtype=np.float64)
+    top = np.ceil(h / resolution - 1e-9).astype(np.int64) - 1
+    return np.where(h > 0, top, -1).astype(np.int32)
+
+
+@dataclass
+class StaticGrid:
+    """S on the map lattice: a 2D trinary grid extruded from the floor.
+
+    ``occ[row, col]`` (row = j - j0, col = i - i0) is -1 unknown, 0 free, 100 occupied;
+    ``top_k`` is the highest voxel index of the static obstacle in the column (-1: none), so the
+    column's static voxels are k = 0 .. top_k.
+    """
+
+    occ: np.ndarray  # int8 (H, W)
+    top_k: np.ndarray  # int32 (H, W)
+    i0: int
+    j0: int
+    resolution: float
+
+    @classmethod
+    def from_height_map(
+        cls,
+        occ: np.ndarray,
+        height: np.ndarray,
+        resolution: float,
+        origin: tuple[float, float, float],
+        lattice_resolution: float,
+    ) -> StaticGrid:
+        """Resample a 2D map (row 0 = lowest y, origin = (x, y, yaw) of cell (0,0)'s corner,
+        heights in metres) onto the voxel lattice. A lattice cell is occupied when the source
+        cell under its centre is, or when the centre of any source cell inside it is (so thin
+        walls survive downsampling); free likewise when not occupied; heights take the max."""
+        occ = np.asarray(occ, dtype=np.int8)
+        height = np.asarray(height, dtype=np.float32)
+        if occ.shape != height.shape or occ.ndim != 2:
+            raise CoreError("static map: occupancy and height grids must have the same 2D shape")
+        H, W = occ.shape
+        ox, oy, yaw = (float(v) for v in origin)
+        c, s = np.cos(yaw), np.sin(yaw)
+        r = float(lattice_resolution)
+        corners = np.array([[0, 0], [W, 0], [0, H], [W, H]], dtype=np.float64) * resolution
+        wx = ox + c * corners[:, 0] - s * corners[:, 1]
+        wy = oy + s * corners[:, 0] + c * corners[:, 1]
+        i0 = int(np.floor(wx.min() / r + 1e-9))
+        j0 = int(np.floor(wy.min() / r + 1e-9))
+        i1 = int(np.ceil(wx.max() / r - 1e-9))
+        j1 = int(np.ceil(wy.max() / r - 1e-9))
+        TW, TH = max(i1 - i0, 1), max(j1 - j0, 1)
+        out_occ = np.full((TH, TW), -1, dtype=np.int8)
+        out_h = np.zeros((TH, TW), dtype=np.float32)
+
+        # (a) each lattice cell samples the source cell under its centre
+        jj, ii = np.mgrid[0:TH, 0:TW]
+        cx = (ii + i0 + 0.5) * r - ox
+        cy = (jj + j0 + 0.5) * r - oy
+        col = np.floor((c * cx + s * cy) / resolution).astype(np.int64)
+        row = np.floor((-s * cx + c * cy) / resolution).astype(np.int64)
+        inside = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        out_occ[inside] = occ[row[inside], col[inside]]
+        out_h[inside] = height[row[inside], col[inside]]
+
+        # (b) every source cell centre marks the lattice cell it falls in (max: occupied wins)
+        if resolution < r:
+            sr, sc = np.mgrid[0:H, 0:W]
+            lx = (sc + 0.5) * resolution
+            ly = (sr + 0.5) * resolution
+            ti = np.floor((ox + c * lx - s * ly) / r).astype(np.int64) - i0
+            tj = np.floor((oy + s * lx + c * ly) / r).astype(np.int64) - j0
+            ok = (ti >= 0) & (ti < TW) & (tj >= 0) & (tj < TH)
+            rank = np.full((TH, TW), -1, dtype=np.int8)  # -1 unknown, 0 free, 1 occupied
+            src_rank = np.where(occ >= 100, 1, np.where(occ == 0, 0, -1)).astype(np.int8)
+            np.maximum.at(rank, (tj[ok], ti[ok]), src_rank[ok])
+            np.maximum.at(out_h, (tj[ok], ti[ok]), height[ok])
+            cur = np.where(out_occ >= 100, 1, np.where(out_occ == 0, 0, -1)).astype(np.int8)
+            best = np.maximum(rank, cur)
+            out_occ = np.where(best == 1, 100, np.where(best == 0, 0, -1)).astype(np.int8)
+        top = top_k_from_height(np.where(out_occ >= 100, out_h, 0.0), r)
+        return cls(out_occ, top, i0, j0, r)
+
+    def near_top(self, margin: int) -> tuple[np.ndarray, int, int]:
+        """Top k of static voxels dilated by ``margin`` cells in x, y and z: (grid, i0, j0).
+        Column values are the highest k within ``margin``, or NO_STATIC."""
+        m = int(margin)
+        H, W = self.top_k.shape
+        base = np.where(self.top_k >= 0, self.top_k + m, NO_STATIC).astype(np.int32)
+        out = np.full((H + 2 * m, W + 2 * m), NO_STATIC, dtype=np.int32)
+        for dj in range(2 * m + 1):
+            for di in range(2 * m + 1):
+                view = out[dj : dj + H, di : di + W]
+                np.maximum(view, base, out=view)
+        return out, self.i0 - m, self.j0 - m
+
+    def is_occupied(self, keys: np.ndarray) -> np.ndarray:
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        col = keys[:, 0] - self.i0
+        row = keys[:, 1] - self.j0
+        H, W = self.top_k.shape
+        ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+        out = np.zeros(len(keys), dtype=bool)
+        top = self.top_k[row[ok], col[ok]]
+        out[ok] = (keys[ok, 2] >= 0) & (keys[ok, 2] <= top)
+        return out
+
+
+@njit(cache=True)
+def _tick_kernel(
+    tb_block, tb_off, n_tb, start,
+    o_coords, logodds,
+    d_keys, d_vals, d_coords, d_meta, st, lt, last_obs,
+    near, near_i0, near_j0, margin,
+    rise, fall, lt_fall, tick_index, counters,
+):  # fmt: skip
+    """Tick rules for the voxels observed in this tick. Returns the index to resume from when
+    the D pool is full, or n_tb when done. counters: [obstacles, seen free, LT entered, LT left]."""
+    NH, NW = near.shape
+    for t in range(start, n_tb):
+        b = tb_block[t]
+        off = tb_off[t]
+        lo = logodds[b, off]
+        if lo == 0.0:
+            continue
+        i = (np.int64(o_coords[b, 0]) << BLOCK_BITS) | ((off >> (2 * BLOCK_BITS)) & BLOCK_MASK)
+        j = (np.int64(o_coords[b, 1]) << BLOCK_BITS) | ((off >> BLOCK_BITS) & BLOCK_MASK)
+        k = (np.int64(o_coords[b, 2]) << BLOCK_BITS) | (off & BLOCK_MASK)
+        if lo > 0.0:
+            r = j - near_j0
+            c = i - near_i0
+            if 0 <= r < NH and 0 <= c < NW and -margin <= k <= near[r, c]:
+                continue  # S's own: a wall seen where the static map has it
+            db = get_or_add_block(d_keys, d_vals, d_coords, d_meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if db < 0:
+                return t
+            doff = voxel_offset(i, j, k)
+            counters[0] += 1
+            v = st[db, doff] + rise
+            last_obs[db, doff] = tick_index
+            if v >= 1.0 - 1e-4:
+                v = 1.0
+                if lt[db, doff] < 1.0:
+                    if lt[db, doff] < 0.65:
+                        counters[2] += 1
+                    lt[db, doff] = 1.0
+            st[db, doff] = v
+        else:
+            counters[1] += 1
+            db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if db < 0:
+                continue
+            doff = voxel_offset(i, j, k)
+            v = st[db, doff] - fall
+            if v <= 1e-4:
+                v = 0.0
+            st[db, doff] = v
+            w = lt[db, doff]
+            if w > 0.0 and v == 0.0:
+                w2 = w - lt_fall
+                if w2 <= 1e-4:
+                    w2 = 0.0
+                if w >= 0.65 > w2:
+                    counters[3] += 1
+                lt[db, doff] = w2
+    return n_tb
+
+
+@njit(cache=True)
+def _forget_kernel(n_blocks, st, last_obs, tick_index, forget_ticks):
+    n = 0
+    for b in range(n_blocks):
+        for o in range(st.shape[1]):
+            if st[b, o] > 0.0 and tick_index - last_obs[b, o] >= forget_ticks:
+                st[b, o] = 0.0
+                n += 1
+    return n
+
+
+@dataclass
+class FrameResult:
+    rays: int
+    hits: int  # voxels that got the hit update
+    misses: int  # voxels that got the miss update
+
+
+@dataclass
+class TickResult:
+    tick_index: int
+    observed: int  # voxels observed in the tick
+    obstacles: int
+    seen_free: int
+    lt_entered: int  # voxels whose LT crossed the occupied threshold upwards
+    lt_left: int  # voxels whose LT fell below the occupied threshold
+    st_forgotten: int
+
+
+class LayeredMap:
+    """S, O, ST and LT on one voxel lattice, with SPEC 2's update rules."""
+
+    def __init__(self, cfg: MapConfig | None = None, static: StaticGrid | None = None):
+        self.cfg = cfg or MapConfig()
+        problems = self.cfg.validate()
+        if problems:
+            raise CoreError("invalid map configuration: " + "; ".join(problems))
+        self.resolution = float(self.cfg.resolution)
+        self.O = VoxelGrid(self.resolution, O_CHANNELS, initial_blocks=1024)
+        self.D = VoxelGrid(self.resolution, D_CHANNELS, initial_blocks=64)
+        self.frame_id = 0
+        self.tick_index = 0
+        self._tick_first = 1
+        self._tb_block = np.empty(1 << 16, dtype=np.int32)
+        self._tb_off = np.empty(1 << 16, dtype=np.int16)
+        self._tb_meta = np.zeros(1, dtype=np.int64)
+        self.static: StaticGrid | None = None
+        self.set_static(static)
+
+    # -- static layer -------------------------------------------------------------------------
+    def set_static(self, static: StaticGrid | None) -> None:
+        if static is not None and abs(static.resolution - self.resolution) > 1e-9:
+            raise CoreError(
+                f"static layer resolution {static.resolution} differs from the map's {self.resolution}; "
+                "resample it with StaticGrid.from_height_map"
+            )
+        self.static = static
+        m = self.cfg.layers.static_margin_cells
+        if static is None:
+            self._near = np.full((1, 1), NO_STATIC, dtype=np.int32)
+            self._near_i0 = self._near_j0 = 0
+        else:
+            self._near, self._near_i0, self._near_j0 = static.near_top(m)
+
+    # -- sensor integration -------------------------------------------------------------------
+    def integrate(
+        self,
+        origin,
+        points,
+        returns=None,
+        max_range: float = 0.0,
+        robot_pose: np.ndarray | None = None,
+    ) -> FrameResult:
+        """Fuse one frame into O.
+
+        origin: sensor origin (3,) in the fixed frame; points: (N, 3) end points in the fixed
+        frame; returns: (N,) bool, False for beams without a return (clear only; default all
+        True); max_range: rays are cut there (<= 0: no limit); robot_pose: 4x4 robot (base) to
+        fixed transform, for the footprint box (None: no footprint test).
+        """
+        origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
+        pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        if returns is None:
+            rets = np.ones(len(pts), dtype=np.bool_)
+        else:
+            rets = np.ascontiguousarray(returns, dtype=np.bool_).reshape(-1)
+            if len(rets) != len(pts):
+                raise CoreError(f"integrate: {len(pts)} points but {len(rets)} return flags")
+        sc = self.cfg.sensor
+        rc = self.cfg.robot
+        if robot_pose is not None:
+            T = np.asarray(robot_pose, dtype=np.float64)
+            R, t = T[:3, :3], T[:3, 3]
+            fp_inv = np.hstack([R.T, (-R.T @ t)[:, None]])
+            use_fp = True
+        else:
+            fp_inv = np.zeros((3, 4))
+            use_fp = False
+        ends, kind = classify_rays(
+            origin, pts, rets, float(max_range), float(sc.ground_tolerance), fp_inv,
+            np.asarray(rc.footprint_min, dtype=np.float64), np.asarray(rc.footprint_max, dtype=np.float64), use_fp,
+        )  # fmt: skip
+        self.frame_id += 1
+        counters = np.zeros(2, dtype=np.int64)
+        phase, start = 0, 0
+        while True:
+            o = self.O
+            status, phase, start = integrate_kernel(
+                origin, ends, kind, 1.0 / self.resolution, self.resolution,
+                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
+                self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
+                sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
+                phase, start, counters,
+            )  # fmt: skip
+            if status == STATUS_DONE:
+                break
+            if status == STATUS_NEED_BLOCKS:
+                o.grow()
+            else:
+                self._grow_tick_buffer()
+        return FrameResult(rays=int((kind > 0).sum()), hits=int(counters[0]), misses=int(counters[1]))
+
+    def _grow_tick_buffer(self) -> None:
+        n = len(self._tb_block) * 2
+        self._tb_block = np.resize(self._tb_block, n)
+        self._tb_off = np.resize(self._tb_off, n)
+
+    # -- tick ---------------------------------------------------------------------------------
+    def end_tick(self) -> TickResult:
+        """Apply the tick rules to the voxels observed since the last tick."""
+        lay = self.cfg.layers
+        rise = lay.tick / lay.st_rise_s
+        fall = lay.tick / lay.st_fall_s
+        lt_fall = lay.tick / lay.lt_fall_s
+        forget_ticks = max(1, int(round(lay.st_forget_s / lay.tick)))
+        n_tb = int(self._tb_meta[0])
+        counters = np.zeros(4, dtype=np.int64)
+        start = 0
+        while True:
+            d = self.D
+            start = _tick_kernel(
+                self._tb_block, self._tb_off, n_tb, start,
+                self.O.block_coords, self.O.data["logodds"],
+                d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"], d.data["last_obs"],
+                self._near, self._near_i0, self._near_j0, lay.static_margin_cells,
+                rise, fall, lt_fall, self.tick_index, counters,
+            )  # fmt: skip
+            if start >= n_tb:
+                break
+            self.D.grow()
+        forgotten = _forget_kernel(
+            self.D.n_blocks, self.D.data["st"], self.D.data["last_obs"], self.tick_index, forget_ticks
+        )
+        result = TickResult(
+            tick_index=self.tick_index,
+            observed=n_tb,
+            obstacles=int(counters[0]),
+            seen_free=int(counters[1]),
+            lt_entered=int(counters[2]),
+            lt_left=int(counters[3]),
+            st_forgotten=int(forgotten),
+        )
+        self.tick_index += 1
+        self._tb_meta[0] = 0
+        self._tick_first = self.frame_id + 1
+        return result
+
+    # -- long-term seeds ----------------------------------------------------------------------
+    def seed_long_term(self, keys: np.ndarray, values) -> None:
+        """Set LT at voxel keys (N, 3), e.g. from --resume or furniture drawn as long-term."""
+        keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
+        vals = np.broadcast_to(np.asarray(values, dtype=np.float32), (len(keys),))
+        if len(keys) and (vals.min() < 0 or vals.max() > 1):
+            raise CoreError("long-term values must lie in [0, 1]")
+        self.D.set("lt", keys, vals)
+
+    # -- queries ------------------------------------------------------------------------------
+    def occupied_keys(self, layer: str = "O") -> np.ndarray:
+        """Keys (M, 3) of voxels occupied in a layer: O (log-odds > 0), ST or LT (>= the
+        occupied threshold), S, or F = max(S, LT)."""
+        thr = self.cfg.projection.occupied_thresh
+        if layer == "O":
+            return self.O.voxels_where(self.O.channel("logodds") > 0)
+        if layer == "ST":
+            return self.D.voxels_where(self.D.channel("st") >= thr)
+        if layer == "LT":
+            return self.D.voxels_where(self.D.channel("lt") >= thr)
+        if layer == "S":
+            return self._static_keys()
+        if layer == "F":
+            lt = self.occupied_keys("LT")
+            s = self._static_keys()
+            both = np.concatenate([lt, s]) if len(s) else lt
+            return np.unique(both, axis=0) if len(both) else both
+        raise CoreError(f"unknown layer {layer!r}; use O, ST, LT, S or F")
+
+    def _static_keys(self) -> np.ndarray:
+        s = self.static
+        if s is None:
+            return np.zeros((0, 3), dtype=np.int64)
+        rows, cols = np.nonzero(s.top_k >= 0)
+        tops = s.top_k[rows, cols]
+        counts = tops + 1
+        rr = np.repeat(rows, counts)
+        cc = np.repeat(cols, counts)
+        kk = np.concatenate([np.arange(n) for n in counts]) if len(counts) else np.zeros(0, np.int64)
+        return np.stack([cc + s.i0, rr + s.j0, kk], axis=1).astype(np.int64)
+
+    def values(self, layer: str, keys: np.ndarray) -> np.ndarray:
+        """Values of a layer at voxel keys: O log-odds (0 unknown), ST / LT in [0, 1], S 0/1."""
+        if layer == "O":
+            return self.O.get("logodds", keys)
+        if layer in ("ST", "LT"):
+            return self.D.get(layer.lower(), keys)
+        if layer == "S":
+            return (self.static.is_occupied(keys) if self.static else np.zeros(len(keys), bool)).astype(np.float32)
+        if layer == "F":
+            return np.maximum(self.values("S", keys), self.values("LT", keys))
+        raise CoreError(f"unknown layer {layer!r}; use O, ST, LT, S or F")
+
+    def known(self, keys: np.ndarray) -> np.ndarray:
+        """True where O was ever updated."""
+        return self.O.get("stamp", keys) > 0
+
+    def nbytes(self) -> int:
+        extra = self._tb_block.nbytes + self._tb_off.nbytes + self._near.nbytes
+        if self.static is not None:
+            extra += self.static.occ.nbytes + self.static.top_k.nbytes
+        return self.O.nbytes() + self.D.nbytes() + extra
+
+    # -- exact state --------------------------------------------------------------------------
+    def state_arrays(self) -> dict[str, np.ndarray]:
+        """Everything needed to continue exactly where this map stands (plain arrays)."""
+        out = {
+            "resolution": np.array(self.resolution),
+            "frame_id": np.array(self.frame_id),
+            "tick_index": np.array(self.tick_index),
+        }
+        out.update(self.O.to_arrays("O_"))
+        out.update(self.D.to_arrays("D_"))
+        return out
+
+    def load_state_arrays(self, arrays: dict[str, np.ndarray], long_term_only: bool = False) -> None:
+        """Load a state written by ``state_arrays``: everything, or only LT (what --resume
+        carries from day 1 to day 2; O, ST and the clocks start afresh)."""
+        res = float(arrays["resolution"])
+        if abs(res - self.resolution) > 1e-9:
+            raise CoreError(f"state resolution {res} differs from the map's {self.resolution}")
+        D = VoxelGrid.from_arrays(res, D_CHANNELS, arrays, "D_")
+        if long_term_only:
+            keys = D.voxels_where(D.channel("lt") > 0)
+            self.seed_long_term(keys, D.get("lt", keys))
+            return
+        self.D = D
+        self.O = VoxelGrid.from_arrays(res, O_CHANNELS, arrays, "O_")
+        self.frame_id = int(arrays["frame_id"])
+        self.tick_index = int(arrays["tick_index"])
+        self._tick_first = self.frame_id + 1
+        self._tb_meta[0] = 0
+
+
+__all__ = [
+    "BLOCK",
+    "FrameResult",
+    "LayeredMap",
+    "StaticGrid",
+    "TickResult",
+    "top_k_from_height",
+]

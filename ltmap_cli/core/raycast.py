@@ -1,0 +1,216 @@
+"""Sensor integration into O: 3D DDA ray casting with OctoMap's per-frame rules.
+
+For one frame (sensor origin + end points in the fixed frame):
+
+1. Each end point is classified (``classify_rays``): NaN dropped; beyond ``max_range`` the ray
+   is cut there and the cut end marks nothing; a return within ``ground_tolerance`` of z = 0 or
+   inside the robot's footprint box clears its ray but is not a hit; a no-return ray clears up
+   to its end and marks nothing.
+2. Hits are applied first: the end voxel of every hit ray gets the hit log-odds once.
+3. Rays are traversed with the Amanatides & Woo DDA exactly as OctoMap's computeRayKeys does
+   (origin voxel included, end voxel excluded, same tie breaking and stop rule); each voxel not
+   yet updated in this frame gets the miss log-odds.
+
+A per-voxel ``stamp`` channel holds the id of the last frame that updated the voxel: a voxel is
+updated at most once per frame and a hit wins over a miss (hits go first), which is OctoMap's
+rule without its hash sets. ``stamp == 0`` means never updated (unknown). Every voxel updated
+for the first time in the current tick is appended to the tick buffer for the tick rules.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .grid import BLOCK_BITS, get_or_add_block, voxel_offset
+
+RAY_SKIP = 0  # dropped (NaN)
+RAY_CLEAR = 1  # clears up to its end, end marks nothing
+RAY_HIT = 2  # clears up to its end, end voxel is a hit
+
+STATUS_DONE = 0
+STATUS_NEED_BLOCKS = 1
+STATUS_NEED_TICK_BUFFER = 2
+
+
+@njit(cache=True)
+def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
+    """Per end point: (end point actually used (N, 3), kind (N,) int8).
+
+    ``returns[i]`` is False for a beam that had no return (its point is where clearing stops).
+    ``fp_inv`` (3, 4) maps fixed-frame points into the robot frame for the footprint test.
+    """
+    n = points.shape[0]
+    ends = np.empty((n, 3), dtype=np.float64)
+    kind = np.empty(n, dtype=np.int8)
+    for i in range(n):
+        px, py, pz = points[i, 0], points[i, 1], points[i, 2]
+        if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+            kind[i] = RAY_SKIP
+            ends[i, 0] = origin[0]
+            ends[i, 1] = origin[1]
+            ends[i, 2] = origin[2]
+            continue
+        k = RAY_HIT if returns[i] else RAY_CLEAR
+        dx, dy, dz = px - origin[0], py - origin[1], pz - origin[2]
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        if max_range > 0.0 and length > max_range:
+            s = max_range / length
+            px, py, pz = origin[0] + dx * s, origin[1] + dy * s, origin[2] + dz * s
+            k = RAY_CLEAR
+        if k == RAY_HIT and ground_tol >= 0.0 and abs(pz) <= ground_tol:
+            k = RAY_CLEAR
+        if k == RAY_HIT and use_fp:
+            lx = fp_inv[0, 0] * px + fp_inv[0, 1] * py + fp_inv[0, 2] * pz + fp_inv[0, 3]
+            ly = fp_inv[1, 0] * px + fp_inv[1, 1] * py + fp_inv[1, 2] * pz + fp_inv[1, 3]
+            lz = fp_inv[2, 0] * px + fp_inv[2, 1] * py + fp_inv[2, 2] * pz + fp_inv[2, 3]
+            if fp_min[0] <= lx <= fp_max[0] and fp_min[1] <= ly <= fp_max[1] and fp_min[2] <= lz <= fp_max[2]:
+                k = RAY_CLEAR
+        kind[i] = k
+        ends[i, 0] = px
+        ends[i, 1] = py
+        ends[i, 2] = pz
+    return ends, kind
+
+
+@njit(cache=True, inline="always")
+def _update_voxel(b, off, delta, lo_min, lo_max, logodds, stamp, frame_id, tick_first, tb_block, tb_off, tb_meta):
+    """Apply ``delta`` to a voxel unless this frame already updated it. Returns 1 when updated,
+    0 when this frame had already updated it, -1 when the tick buffer is full (nothing changed)."""
+    st = stamp[b, off]
+    if st == frame_id:
+        return 0
+    if st < tick_first:
+        n = tb_meta[0]
+        if n >= tb_block.shape[0]:
+            return -1
+        tb_block[n] = b
+        tb_off[n] = off
+        tb_meta[0] = n + 1
+    v = logodds[b, off] + delta
+    if v > lo_max:
+        v = lo_max
+    elif v < lo_min:
+        v = lo_min
+    logodds[b, off] = v
+    stamp[b, off] = frame_id
+    return 1
+
+
+@njit(cache=True)
+def integrate_kernel(
+    origin, ends, kind, inv_res, res,
+    table_keys, table_vals, block_coords, meta, logodds, stamp,
+    frame_id, tick_first, tb_block, tb_off, tb_meta,
+    hit_lo, miss_lo, lo_min, lo_max,
+    phase, start, counters,
+):  # fmt: skip
+    """Run phases 0 (hits) and 1 (rays) from (phase, start). Returns (status, phase, index);
+    on a status other than DONE the caller grows storage and calls again from there (the stamps
+    make a repeated voxel harmless). ``counters`` accumulates [hits applied, misses applied]."""
+    hit_lo32 = np.float32(hit_lo)
+    miss_lo32 = np.float32(miss_lo)
+    lo_min32 = np.float32(lo_min)
+    lo_max32 = np.float32(lo_max)
+    n = ends.shape[0]
+    if phase == 0:
+        for r in range(start, n):
+            if kind[r] != RAY_HIT:
+                continue
+            i = np.int64(np.floor(ends[r, 0] * inv_res))
+            j = np.int64(np.floor(ends[r, 1] * inv_res))
+            k = np.int64(np.floor(ends[r, 2] * inv_res))
+            b = get_or_add_block(table_keys, table_vals, block_coords, meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if b < 0:
+                return STATUS_NEED_BLOCKS, 0, r
+            u = _update_voxel(b, voxel_offset(i, j, k), hit_lo32, lo_min32, lo_max32,
+                              logodds, stamp, frame_id, tick_first, tb_block, tb_off, tb_meta)
+            if u < 0:
+                return STATUS_NEED_TICK_BUFFER, 0, r
+            counters[0] += u
+        phase = 1
+        start = 0
+
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    ki0 = np.int64(np.floor(ox * inv_res))
+    kj0 = np.int64(np.floor(oy * inv_res))
+    kk0 = np.int64(np.floor(oz * inv_res))
+    big = 1e300
+    last_bx = np.int64(-(1 << 40))
+    last_by = np.int64(0)
+    last_bz = np.int64(0)
+    last_b = np.int64(-1)
+    for r in range(start, n):
+        if kind[r] == RAY_SKIP:
+            continue
+        ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
+        ei = np.int64(np.floor(ex * inv_res))
+        ej = np.int64(np.floor(ey * inv_res))
+        ek = np.int64(np.floor(ez * inv_res))
+        if ei == ki0 and ej == kj0 and ek == kk0:
+            continue
+        dx, dy, dz = ex - ox, ey - oy, ez - oz
+        length = np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx /= length
+        dy /= length
+        dz /= length
+        ci, cj, ck = ki0, kj0, kk0
+        si = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
+        sj = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
+        sk = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
+        if si != 0:
+            tmx = ((ci + 0.5) * res + si * res * 0.5 - ox) / dx
+            tdx = res / abs(dx)
+        else:
+            tmx = big
+            tdx = big
+        if sj != 0:
+            tmy = ((cj + 0.5) * res + sj * res * 0.5 - oy) / dy
+            tdy = res / abs(dy)
+        else:
+            tmy = big
+            tdy = big
+        if sk != 0:
+            tmz = ((ck + 0.5) * res + sk * res * 0.5 - oz) / dz
+            tdz = res / abs(dz)
+        else:
+            tmz = big
+            tdz = big
+        max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
+        steps = 0
+        while True:
+            # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss
+            bx, by, bz = ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS
+            if bx != last_bx or by != last_by or bz != last_bz or last_b < 0:
+                last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
+                last_bx, last_by, last_bz = bx, by, bz
+                if last_b < 0:
+                    return STATUS_NEED_BLOCKS, 1, r
+            u = _update_voxel(last_b, voxel_offset(ci, cj, ck), miss_lo32, lo_min32, lo_max32, logodds, stamp,
+                              frame_id, tick_first, tb_block, tb_off, tb_meta)
+            if u < 0:
+                return STATUS_NEED_TICK_BUFFER, 1, r
+            counters[1] += u
+            # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
+            if tmx < tmy:
+                dim = 0 if tmx < tmz else 2
+            else:
+                dim = 1 if tmy < tmz else 2
+            if dim == 0:
+                ci += si
+                tmx += tdx
+            elif dim == 1:
+                cj += sj
+                tmy += tdy
+            else:
+                ck += sk
+                tmz += tdz
+            if ci == ei and cj == ej and ck == ek:
+                break
+            dist = min(tmx, min(tmy, tmz))
+            if dist > length:
+                break
+            steps += 1
+            if steps > max_steps:
+                break
+    return STATUS_DONE, 1, n

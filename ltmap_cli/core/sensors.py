@@ -1,0 +1,58 @@
+"""Sensor geometry: LaserScan ranges and depth images to end points (REP 117 / REP 118).
+
+Pure numpy on plain arrays; the readers in ``ltmap_cli.io`` produce the arrays, these turn them
+into end points in the sensor frame with a per-point ``returns`` flag for ``LayeredMap.integrate``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def scan_to_points(
+    ranges: np.ndarray,
+    angle_min: float,
+    angle_increment: float,
+    range_min: float,
+    range_max: float,
+    clear_no_return: bool = True,
+) -> tuple[np.ndarray, np.ndarray]:
+    """End points (N, 3) in the laser frame and ``returns`` (N,) for a LaserScan.
+
+    - NaN, -inf and ranges below ``range_min`` are dropped;
+    - +inf or ranges above ``range_max`` are no return: with ``clear_no_return`` the beam clears
+      up to ``range_max`` and marks nothing, else it is dropped;
+    - ranges in [range_min, range_max] are returns (hits).
+    """
+    r = np.asarray(ranges, dtype=np.float64)
+    ang = angle_min + angle_increment * np.arange(len(r), dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(r) & (r >= range_min) & (r <= range_max)
+        no_return = (np.isposinf(r) | (np.isfinite(r) & (r > range_max))) if clear_no_return else np.zeros(len(r), bool)
+    use = valid | no_return
+    dist = np.where(valid, r, range_max)[use]
+    a = ang[use]
+    pts = np.stack([dist * np.cos(a), dist * np.sin(a), np.zeros_like(dist)], axis=1)
+    return pts, valid[use]
+
+
+def depth_to_points(
+    depth_m: np.ndarray, fx: float, fy: float, cx: float, cy: float, stride: int = 1
+) -> np.ndarray:
+    """End points (N, 3) in the optical frame (x right, y down, z forward) of the valid pixels
+    (finite, > 0) of a depth image in metres; ``stride`` keeps every n-th row and column."""
+    d = np.asarray(depth_m, dtype=np.float32)
+    if stride > 1:
+        d = d[::stride, ::stride]
+    h, w = d.shape
+    v, u = np.nonzero(np.isfinite(d) & (d > 0))
+    z = d[v, u].astype(np.float64)
+    uu = u.astype(np.float64) * stride
+    vv = v.astype(np.float64) * stride
+    return np.stack([(uu - cx) * z / fx, (vv - cy) * z / fy, z], axis=1)
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 rigid transform to points (N, 3)."""
+    T = np.asarray(T, dtype=np.float64)
+    return np.asarray(points, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
