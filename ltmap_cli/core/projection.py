@@ -193,9 +193,7 @@ def _virtual_scan_kernel(
                 r = cj - p_j0
                 c = ci - p_i0
                 hit = False
-                if 0 <= r < H and 0 <= c < W and p_data[r, c] >= 100:
-                    hit = True
-                elif use_o and _o_column_occupied(table_keys, table_vals, logodds, ci, cj, k_lo, k_hi):
+                if 0 <= r < H and 0 <= c < W and p_data[r, c] >= 100 or use_o and _o_column_occupied(table_keys, table_vals, logodds, ci, cj, k_lo, k_hi):
                     hit = True
                 if hit:
                     out[a] = t_enter

@@ -73,30 +73,6 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
     return ends, kind
 
 
-@njit(cache=True, inline="always")
-def _update_voxel(b, off, delta, lo_min, lo_max, logodds, stamp, frame_id, tick_first, tb_block, tb_off, tb_meta):
-    """Apply ``delta`` to a voxel unless this frame already updated it. Returns 1 when updated,
-    0 when this frame had already updated it, -1 when the tick buffer is full (nothing changed)."""
-    st = stamp[b, off]
-    if st == frame_id:
-        return 0
-    if st < tick_first:
-        n = tb_meta[0]
-        if n >= tb_block.shape[0]:
-            return -1
-        tb_block[n] = b
-        tb_off[n] = off
-        tb_meta[0] = n + 1
-    v = logodds[b, off] + delta
-    if v > lo_max:
-        v = lo_max
-    elif v < lo_min:
-        v = lo_min
-    logodds[b, off] = v
-    stamp[b, off] = frame_id
-    return 1
-
-
 @njit(cache=True)
 def integrate_kernel(
     origin, ends, kind, inv_res, res,
@@ -113,6 +89,10 @@ def integrate_kernel(
     lo_min32 = np.float32(lo_min)
     lo_max32 = np.float32(lo_max)
     n = ends.shape[0]
+    n_tb = tb_meta[0]
+    tb_cap = tb_block.shape[0]
+    n_hit = 0
+    n_miss = 0
     if phase == 0:
         for r in range(start, n):
             if kind[r] != RAY_HIT:
@@ -122,14 +102,28 @@ def integrate_kernel(
             k = np.int64(np.floor(ends[r, 2] * inv_res))
             b = get_or_add_block(table_keys, table_vals, block_coords, meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
             if b < 0:
+                tb_meta[0] = n_tb
+                counters[0] += n_hit
                 return STATUS_NEED_BLOCKS, 0, r
-            u = _update_voxel(b, voxel_offset(i, j, k), hit_lo32, lo_min32, lo_max32,
-                              logodds, stamp, frame_id, tick_first, tb_block, tb_off, tb_meta)
-            if u < 0:
-                return STATUS_NEED_TICK_BUFFER, 0, r
-            counters[0] += u
+            off = voxel_offset(i, j, k)
+            st = stamp[b, off]
+            if st == frame_id:
+                continue
+            if st < tick_first:
+                if n_tb >= tb_cap:
+                    tb_meta[0] = n_tb
+                    counters[0] += n_hit
+                    return STATUS_NEED_TICK_BUFFER, 0, r
+                tb_block[n_tb] = b
+                tb_off[n_tb] = off
+                n_tb += 1
+            v = logodds[b, off] + hit_lo32
+            logodds[b, off] = lo_max32 if v > lo_max32 else v
+            stamp[b, off] = frame_id
+            n_hit += 1
         phase = 1
         start = 0
+        counters[0] += n_hit
 
     ox, oy, oz = origin[0], origin[1], origin[2]
     ki0 = np.int64(np.floor(ox * inv_res))
@@ -185,12 +179,24 @@ def integrate_kernel(
                 last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
                 last_bx, last_by, last_bz = bx, by, bz
                 if last_b < 0:
+                    tb_meta[0] = n_tb
+                    counters[1] += n_miss
                     return STATUS_NEED_BLOCKS, 1, r
-            u = _update_voxel(last_b, voxel_offset(ci, cj, ck), miss_lo32, lo_min32, lo_max32, logodds, stamp,
-                              frame_id, tick_first, tb_block, tb_off, tb_meta)
-            if u < 0:
-                return STATUS_NEED_TICK_BUFFER, 1, r
-            counters[1] += u
+            off = voxel_offset(ci, cj, ck)
+            st = stamp[last_b, off]
+            if st != frame_id:
+                if st < tick_first:
+                    if n_tb >= tb_cap:
+                        tb_meta[0] = n_tb
+                        counters[1] += n_miss
+                        return STATUS_NEED_TICK_BUFFER, 1, r
+                    tb_block[n_tb] = last_b
+                    tb_off[n_tb] = off
+                    n_tb += 1
+                v = logodds[last_b, off] + miss_lo32
+                logodds[last_b, off] = lo_min32 if v < lo_min32 else v
+                stamp[last_b, off] = frame_id
+                n_miss += 1
             # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
             if tmx < tmy:
                 dim = 0 if tmx < tmz else 2
@@ -213,4 +219,6 @@ def integrate_kernel(
             steps += 1
             if steps > max_steps:
                 break
+    tb_meta[0] = n_tb
+    counters[1] += n_miss
     return STATUS_DONE, 1, n
