@@ -4,18 +4,63 @@
 ``data[row, col]`` with row 0 the *bottom* row (lowest y) and col 0 the lowest x; values -1
 unknown, 0..100 occupancy percent. ``origin`` is (x, y, yaw) of the lower-left corner of cell
 (0, 0). The image on disk has row 0 at the *top*; the reader and writer flip.
+
+Reading follows nav2_map_server ``loadMapYaml`` / ``loadMapFromFile``:
+
+- keys ``image`` (relative to the YAML's folder unless absolute), ``resolution``, ``origin``
+  ``[x, y, yaw]``, ``negate``, ``occupied_thresh``, ``free_thresh`` are required; ``mode``
+  (``trinary`` | ``scale`` | ``raw``) defaults to ``trinary``;
+- shade = mean of the R, G, B channels in [0, 1] (a grey image counts its grey three times); in
+  trinary mode an image with an alpha channel averages alpha (1 = opaque) in as a fourth channel.
+  The arithmetic is GraphicsMagick Q16's, as nav2 runs it: channels are 16-bit quanta (an 8-bit
+  level v is v * 257), their mean is cut to an integer quantum and divided by 65535, so pixels
+  exactly at a threshold fall on the same side as in nav2;
+- occ = shade if negate else 1 - shade;
+- trinary: occ > occupied_thresh -> 100, occ < free_thresh -> 0, else -1;
+- scale: a pixel that is not fully opaque -> -1, then as trinary, and in between
+  rint((occ - free) / (occupied - free) * 100);
+- raw: v = round(shade * 255) (negate ignored), v in 0..100 -> v, else -1.
+
+Writing follows nav2_map_server ``map_saver`` (``tryWriteMapToFile``):
+
+- trinary: cell < 0 or > 100 -> 205; cell <= rint(free_thresh*100) -> 254;
+  cell >= rint(occupied_thresh*100) -> 0; else 205. With the default free_thresh 0.196, 205
+  reads back as unknown (occ(205) = 0.19608 is not < 0.196), 254 as free and 0 as occupied.
+- scale: grey = round(255 * (100 - cell) / 100) (0 -> 255 white, 100 -> 0 black); unknown is
+  a transparent pixel. A PGM has no alpha, so in scale mode the map image that the YAML names is
+  ``<stem>.png`` (grey + alpha, exactly what map_saver writes in scale mode); ``<stem>.pgm`` is
+  still written, with unknown as 205, for tools that want a PGM.
+- The YAML carries full float precision (map_saver rounds to 3 significant digits, which moves
+  origins of large maps).
+
+Preview PNG: in trinary mode ``<stem>.png`` holds the very same pixels as ``<stem>.pgm`` (one
+pixel per cell, no upscaling: image viewers zoom, and the file stays a faithful copy).
 """
 
 from __future__ import annotations
 
+import json
+import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from ltmap_cli.errors import ConfigError, MapFileError
+from ltmap_cli.io.atomic import atomic_path, write_bytes_atomic, write_text_atomic
+
 UNKNOWN = -1
 FREE = 0
 OCCUPIED = 100
+
+MODES = ("trinary", "scale", "raw")
+REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
+
+# map_saver's grey levels (trinary)
+PIXEL_OCCUPIED = 0
+PIXEL_FREE = 254
+PIXEL_UNKNOWN = 205
 
 
 @dataclass
@@ -33,10 +78,326 @@ class GridMap:
         return int(self.data.shape[1])
 
 
+# --------------------------------------------------------------------------------------------
+# reading
+
+
+def _yaml_number(doc: dict, key: str, path: Path) -> float:
+    value = doc[key]
+    if isinstance(value, bool):
+        value = None  # a YAML true/false is not a number here
+    try:
+        number = float(value)  # ints, floats and numeric strings, as yaml-cpp's as<double>
+    except (TypeError, ValueError):
+        raise MapFileError(
+            f"{path}: key '{key}' must be a number, got {doc[key]!r}; fix the map YAML"
+        ) from None
+    if not math.isfinite(number):
+        raise MapFileError(f"{path}: key '{key}' must be a finite number, got {doc[key]!r}; fix the map YAML")
+    return number
+
+
+def _load_yaml(path: Path) -> dict:
+    import yaml
+
+    if not path.exists():
+        raise MapFileError(f"{path}: map YAML not found; give the path of an existing map_server .yaml file")
+    if path.is_dir():
+        raise MapFileError(f"{path}: is a folder, not a map YAML; give the path of the map's .yaml file")
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MapFileError(f"{path}: cannot read the map YAML ({exc}); check the file") from None
+    try:
+        doc = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        where = ""
+        mark = getattr(exc, "problem_mark", None)
+        if mark is not None:
+            where = f" at line {mark.line + 1}, column {mark.column + 1}"
+        problem = getattr(exc, "problem", None) or "invalid YAML"
+        raise MapFileError(f"{path}: not valid YAML{where} ({problem}); fix the map YAML") from None
+    if not isinstance(doc, dict):
+        raise MapFileError(
+            f"{path}: not a map_server YAML (expected a mapping with keys {', '.join(REQUIRED_KEYS)})"
+        )
+    return doc
+
+
+QUANTUM_MAX = 65535  # GraphicsMagick Q16 (the build nav2 uses on Ubuntu / Debian)
+
+
+def _parse_pgm(raw: bytes, path: Path) -> np.ndarray:
+    """Decode a P5 (binary) or P2 (ASCII) PGM into Q16 quanta (uint32, 0..65535), shape (H, W)."""
+    magic = raw[:2]
+    # header tokens: magic, width, height, maxval; '#' comments run to the end of the line
+    tokens: list[bytes] = []
+    pos = 2
+    n = len(raw)
+    while len(tokens) < 3:
+        while pos < n and raw[pos : pos + 1].isspace():
+            pos += 1
+        if pos < n and raw[pos : pos + 1] == b"#":
+            while pos < n and raw[pos : pos + 1] not in (b"\n", b"\r"):
+                pos += 1
+            continue
+        start = pos
+        while pos < n and not raw[pos : pos + 1].isspace() and raw[pos : pos + 1] != b"#":
+            pos += 1
+        if start == pos:
+            raise MapFileError(f"{path}: truncated PGM header; re-export the map image")
+        tokens.append(raw[start:pos])
+    try:
+        width, height, maxval = (int(t) for t in tokens)
+    except ValueError:
+        raise MapFileError(f"{path}: bad PGM header {b' '.join(tokens)!r}; re-export the map image") from None
+    if width <= 0 or height <= 0 or not 0 < maxval < 65536:
+        raise MapFileError(
+            f"{path}: bad PGM header (width {width}, height {height}, maxval {maxval}); "
+            "re-export the map image"
+        )
+    count = width * height
+    if magic == b"P5":
+        pos += 1  # exactly one whitespace byte separates maxval from the raster
+        dtype = np.dtype(">u2") if maxval > 255 else np.dtype("u1")
+        need = count * dtype.itemsize
+        if len(raw) - pos < need:
+            raise MapFileError(
+                f"{path}: PGM raster truncated ({len(raw) - pos} of {need} bytes); re-export the map image"
+            )
+        pixels = np.frombuffer(raw, dtype=dtype, count=count, offset=pos).astype(np.int64)
+    else:  # P2
+        body = re.sub(rb"#[^\n\r]*", b" ", raw[pos:])
+        try:
+            pixels = np.array(body.split(), dtype=np.int64)
+        except ValueError:
+            raise MapFileError(f"{path}: non-numeric pixel in ASCII PGM; re-export the map image") from None
+        if pixels.size < count:
+            raise MapFileError(
+                f"{path}: PGM raster truncated ({pixels.size} of {count} pixels); re-export the map image"
+            )
+        pixels = pixels[:count]
+    pixels = np.clip(pixels, 0, maxval)
+    quanta = (pixels * QUANTUM_MAX + maxval // 2) // maxval  # maxval 255: exactly v * 257
+    return quanta.reshape(height, width).astype(np.uint32)
+
+
+def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
+    """Return (colour (H, W, 3), alpha (H, W) or None) as Q16 quanta (uint32, 0..65535)."""
+    if not path.exists():
+        raise MapFileError(f"{path}: map image not found; check the 'image' key of the map YAML")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise MapFileError(f"{path}: cannot read the map image ({exc}); check the file") from None
+    if raw[:2] in (b"P5", b"P2"):
+        grey = _parse_pgm(raw, path)
+        return np.repeat(grey[:, :, None], 3, axis=2), None
+
+    import io
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(io.BytesIO(raw)) as img:
+            img.load()
+            mode = img.mode
+            if mode == "P":
+                img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+            elif mode == "PA":
+                img = img.convert("RGBA")
+            elif mode == "1":
+                img = img.convert("L")
+            elif mode in ("CMYK", "YCbCr", "LAB", "HSV", "RGBX"):
+                img = img.convert("RGB")
+            elif mode in ("La", "RGBa"):
+                img = img.convert("LA" if mode == "La" else "RGBA")
+            arr = np.asarray(img)
+            mode = img.mode
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+        raise MapFileError(
+            f"{path}: cannot read the map image ({exc}); use a PGM or PNG grayscale/RGB image"
+        ) from None
+
+    if mode.startswith("I"):  # 16-bit grey (a 16-bit PNG opens as mode I / I;16)
+        grey = np.clip(arr.astype(np.int64), 0, QUANTUM_MAX).astype(np.uint32)
+        return np.repeat(grey[:, :, None], 3, axis=2), None
+    if mode not in ("L", "LA", "RGB", "RGBA"):
+        raise MapFileError(f"{path}: unsupported image mode {mode}; use a PGM or PNG grayscale/RGB image")
+    quanta = arr.astype(np.uint32) * 257  # 8-bit level -> Q16 quantum
+    if mode == "L":
+        return np.repeat(quanta[:, :, None], 3, axis=2), None
+    if mode == "LA":
+        return np.repeat(quanta[:, :, :1], 3, axis=2), quanta[:, :, 1]
+    if mode == "RGB":
+        return quanta, None
+    return quanta[:, :, :3], quanta[:, :, 3]
+
+
+def cells_from_image(
+    colour: np.ndarray,
+    alpha: np.ndarray | None,
+    mode: str,
+    negate: bool,
+    occupied_thresh: float,
+    free_thresh: float,
+) -> np.ndarray:
+    """nav2 ``loadMapFromFile``'s per-pixel rule, in its arithmetic. ``colour`` (H, W, 3) and
+    ``alpha`` (H, W) are Q16 quanta (alpha 65535 = opaque) with image row 0 at the top; returns
+    int8 cells in image row order (no flip)."""
+    total = colour.astype(np.int64).sum(axis=2)
+    count = 3
+    if mode == "trinary" and alpha is not None:
+        total = total + alpha
+        count = 4
+    # nav2: scaleQuantumToDouble(sum / n): the mean is cut to an integer Quantum, then / MaxRGB
+    shade = (total // count).astype(np.float64) / QUANTUM_MAX
+    occ = shade if negate else 1.0 - shade
+    if mode == "raw":
+        value = np.floor(shade * 255.0 + 0.5)  # std::round on non-negative values
+        return np.where(value <= OCCUPIED, value, UNKNOWN).astype(np.int8)
+    cells = np.full(shade.shape, UNKNOWN, dtype=np.int8)
+    if mode == "scale":
+        between = np.rint((occ - free_thresh) / (occupied_thresh - free_thresh) * 100.0)
+        cells[:] = np.clip(between, -128, 127).astype(np.int8)
+    cells[occ < free_thresh] = FREE
+    cells[occupied_thresh < occ] = OCCUPIED
+    if mode == "scale" and alpha is not None:
+        cells[alpha < QUANTUM_MAX] = UNKNOWN
+    return cells
+
+
 def read_map_yaml(path: str | Path) -> GridMap:
     """Read a map_server YAML and its image with nav2 map_io semantics (modes trinary, scale,
     raw; negate; occupied_thresh / free_thresh). Raises MapFileError with a one-line message."""
-    raise NotImplementedError
+    path = Path(path)
+    doc = _load_yaml(path)
+    for key in REQUIRED_KEYS:
+        if key not in doc or doc[key] is None:
+            raise MapFileError(
+                f"{path}: missing key '{key}'; a map_server YAML needs {', '.join(REQUIRED_KEYS)}"
+            )
+
+    image = doc["image"]
+    if not isinstance(image, str) or not image.strip():
+        raise MapFileError(
+            f"{path}: key 'image' must be the image file name, got {image!r}; fix the map YAML"
+        )
+    image_path = Path(image)
+    if not image_path.is_absolute():
+        image_path = path.parent / image_path
+
+    resolution = _yaml_number(doc, "resolution", path)
+    if resolution <= 0.0:
+        raise MapFileError(
+            f"{path}: key 'resolution' must be > 0 (metres per cell), got {doc['resolution']!r}"
+        )
+
+    origin = doc["origin"]
+    if not isinstance(origin, list) or len(origin) != 3:
+        raise MapFileError(
+            f"{path}: key 'origin' must be a list of 3 numbers [x, y, yaw], got {origin!r}; fix the map YAML"
+        )
+    origin_values = []
+    for item in origin:
+        if isinstance(item, bool) or not isinstance(item, (int, float, str)):
+            raise MapFileError(f"{path}: key 'origin' must be 3 numbers [x, y, yaw], got {origin!r}")
+        try:
+            number = float(item)
+        except ValueError:
+            raise MapFileError(
+                f"{path}: key 'origin' must be 3 numbers [x, y, yaw], got {origin!r}"
+            ) from None
+        if not math.isfinite(number):
+            raise MapFileError(f"{path}: key 'origin' must be 3 finite numbers, got {origin!r}")
+        origin_values.append(number)
+
+    negate_raw = doc["negate"]
+    if isinstance(negate_raw, (bool, int)):
+        negate = bool(negate_raw)
+    else:
+        raise MapFileError(f"{path}: key 'negate' must be 0 or 1 (or false/true), got {negate_raw!r}")
+
+    occupied_thresh = _yaml_number(doc, "occupied_thresh", path)
+    free_thresh = _yaml_number(doc, "free_thresh", path)
+
+    mode = doc.get("mode", "trinary")
+    if mode is None:
+        mode = "trinary"
+    if mode not in MODES:
+        raise MapFileError(f"{path}: key 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
+    if mode == "scale" and not free_thresh < occupied_thresh:
+        raise MapFileError(
+            f"{path}: scale mode needs free_thresh < occupied_thresh, got {free_thresh} and {occupied_thresh}"
+        )
+
+    colour, alpha = _read_image(image_path)
+    cells = cells_from_image(colour, alpha, mode, negate, occupied_thresh, free_thresh)
+    data = np.ascontiguousarray(cells[::-1])  # image row 0 is the top of the map
+    return GridMap(data=data, resolution=resolution, origin=tuple(origin_values))
+
+
+# --------------------------------------------------------------------------------------------
+# writing
+
+
+def _yaml_scalar(text: str) -> str:
+    if re.fullmatch(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*", text):
+        return text
+    return json.dumps(text)  # a JSON string is a valid YAML double-quoted scalar
+
+
+def _yaml_float(value: float) -> str:
+    return repr(float(value))
+
+
+def trinary_pixels(data: np.ndarray, occupied_thresh: float, free_thresh: float) -> np.ndarray:
+    """map_saver's trinary grey level per cell (same row order as ``data``)."""
+    cells = data.astype(np.int16)
+    free_int = int(np.rint(free_thresh * 100.0))
+    occupied_int = int(np.rint(occupied_thresh * 100.0))
+    pixels = np.full(cells.shape, PIXEL_UNKNOWN, dtype=np.uint8)
+    known = (cells >= 0) & (cells <= 100)
+    pixels[known & (cells <= free_int)] = PIXEL_FREE
+    pixels[known & (cells > free_int) & (cells >= occupied_int)] = PIXEL_OCCUPIED
+    return pixels
+
+
+def scale_pixels(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """map_saver's scale grey level and alpha per cell: grey round(255 * (100 - v) / 100), alpha
+    255; unknown (outside 0..100) grey 205, alpha 0."""
+    cells = data.astype(np.int32)
+    known = (cells >= 0) & (cells <= 100)
+    grey = np.where(known, (255 * (100 - cells) + 50) // 100, PIXEL_UNKNOWN).astype(np.uint8)
+    alpha = np.where(known, 255, 0).astype(np.uint8)
+    return grey, alpha
+
+
+def _pgm_bytes(pixels: np.ndarray) -> bytes:
+    height, width = pixels.shape
+    return b"P5\n%d %d\n255\n" % (width, height) + np.ascontiguousarray(pixels, dtype=np.uint8).tobytes()
+
+
+def _write_png(path: Path, pixels: np.ndarray, alpha: np.ndarray | None = None) -> None:
+    from PIL import Image
+
+    # a 2D uint8 array becomes mode L, an (H, W, 2) one mode LA
+    array = pixels if alpha is None else np.stack([pixels, alpha], axis=2)
+    img = Image.fromarray(np.ascontiguousarray(array, dtype=np.uint8))
+    with atomic_path(path) as tmp:
+        img.save(tmp, format="PNG")
+
+
+def map_file_paths(yaml_path: str | Path) -> tuple[Path, Path, Path]:
+    """(yaml, pgm, png) paths that ``write_map`` writes for ``yaml_path``: a ``.yaml`` / ``.yml``
+    suffix is kept, any other name gets ``.yaml`` appended."""
+    yaml_path = Path(yaml_path)
+    if yaml_path.suffix.lower() in (".yaml", ".yml"):
+        stem = yaml_path.with_suffix("")
+    else:
+        stem = yaml_path
+        yaml_path = Path(f"{yaml_path}.yaml")
+    return yaml_path, Path(f"{stem}.pgm"), Path(f"{stem}.png")
 
 
 def write_map(
@@ -47,6 +408,62 @@ def write_map(
     free_thresh: float = 0.196,
     png: bool = True,
 ) -> None:
-    """Write ``<stem>.pgm`` + ``<stem>.yaml`` (+ ``<stem>.png`` preview) atomically, like
-    map_saver: trinary occupied 0, free 254, unknown 205; scale writes 254..0 for 0..100."""
-    raise NotImplementedError
+    """Write ``<stem>.pgm`` + ``<stem>.yaml`` (+ ``<stem>.png``) atomically, like map_saver.
+
+    trinary: occupied 0, free 254, unknown 205 in the PGM, which the YAML names; ``png`` adds a
+    preview with the same pixels. scale: grey 255..0 for 0..100; the YAML names ``<stem>.png``
+    (grey + alpha, unknown transparent: nav2 needs the alpha to see unknown in scale mode), so the
+    PNG is written whatever ``png`` says; the PGM (unknown 205) is written too. The images are
+    written before the YAML, so a YAML on disk never names a missing image.
+
+    Raises ConfigError for a bad mode or thresholds, ValueError for an empty or non-2D grid.
+    """
+    if mode not in ("trinary", "scale"):
+        raise ConfigError(f"map mode must be 'trinary' or 'scale', got {mode!r}")
+    if not (0.0 <= free_thresh < occupied_thresh <= 1.0):
+        raise ConfigError(
+            f"map thresholds need 0 <= free_thresh < occupied_thresh <= 1, got free_thresh {free_thresh} "
+            f"and occupied_thresh {occupied_thresh}"
+        )
+    if mode == "trinary" and not (1.0 / 255.0 < free_thresh <= 1.0 - PIXEL_UNKNOWN / 255.0):
+        raise ConfigError(
+            f"free_thresh {free_thresh} would make map_server read unknown (grey 205) or free (grey 254) "
+            f"wrongly; use a value in (0.0039, 0.1960], e.g. 0.196"
+        )
+    data = np.asarray(grid.data)
+    if data.ndim != 2 or data.size == 0:
+        raise ValueError(f"write_map needs a non-empty 2D grid, got shape {data.shape}")
+    if not np.issubdtype(data.dtype, np.integer):
+        raise ValueError(f"write_map needs integer cells (-1, 0..100), got dtype {data.dtype}")
+    resolution = float(grid.resolution)
+    if not (math.isfinite(resolution) and resolution > 0.0):
+        raise ValueError(f"write_map needs a resolution > 0, got {grid.resolution}")
+    origin = tuple(float(v) for v in grid.origin)
+    if len(origin) != 3 or not all(math.isfinite(v) for v in origin):
+        raise ValueError(f"write_map needs a finite origin (x, y, yaw), got {grid.origin}")
+
+    yaml_file, pgm_file, png_file = map_file_paths(yaml_path)
+    image_rows = data[::-1]  # image row 0 is the top of the map
+
+    if mode == "trinary":
+        pixels = trinary_pixels(image_rows, occupied_thresh, free_thresh)
+        write_bytes_atomic(pgm_file, _pgm_bytes(pixels))
+        if png:
+            _write_png(png_file, pixels)
+        image_name = pgm_file.name
+    else:
+        grey, alpha = scale_pixels(image_rows)
+        write_bytes_atomic(pgm_file, _pgm_bytes(grey))
+        _write_png(png_file, grey, alpha)
+        image_name = png_file.name
+
+    text = (
+        f"image: {_yaml_scalar(image_name)}\n"
+        f"mode: {mode}\n"
+        f"resolution: {_yaml_float(resolution)}\n"
+        f"origin: [{', '.join(_yaml_float(v) for v in origin)}]\n"
+        f"negate: 0\n"
+        f"occupied_thresh: {_yaml_float(occupied_thresh)}\n"
+        f"free_thresh: {_yaml_float(free_thresh)}\n"
+    )
+    write_text_atomic(yaml_file, text)
