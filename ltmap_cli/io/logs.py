@@ -1,0 +1,321 @@
+"""Read robot logs as one stream of plain frames in log-time order.
+
+Formats: ROS 1 ``.bag`` (v2.0), ROS 2 bag folders (sqlite3 or mcap storage; the folder, its
+``metadata.yaml`` or its ``.db3`` may be given), standalone ``.mcap`` (ros2 profile with CDR, or
+ros1 messages). Several logs are merged into one stream by log time (a heap merge); nothing is
+loaded whole: memory does not grow with log size.
+
+API::
+
+    from ltmap_cli.io.logs import open_logs
+
+    with open_logs(paths, allow_truncated=False) as logs:      # -> LogSet
+        logs.topics            # {name: TopicInfo(name, msgtype, count, first_ns, last_ns)}
+        logs.start_ns, logs.end_ns
+        sel = logs.select(scan_topics=[], cloud_topics=[], depth_topics=[])   # -> TopicSelection
+        sel.skipped            # {topic: why it will not be used}
+        for topic, log_time_ns, item in logs.messages(sel):
+            # item: ScanFrame | CloudFrame | DepthFrame | TfSample | OdometrySample
+            ...
+        logs.stats             # ReadStats: messages read per topic; stopped_at for a cut-off log
+        logs.skipped           # {reason: count} of messages read but not turned into frames
+
+Topic selection (``select_topics``): LaserScan -> scans, PointCloud2 -> clouds, Image -> depth.
+With no names, every topic of those types is used, except Image topics whose name does not
+contain ``depth`` (a colour camera) and depth topics without a CameraInfo. Naming any topic
+(``scan_topics``, ``cloud_topics`` or ``depth_topics``) makes the choice exclusive: only the
+named sensor topics are used (``--scan-topic /scan`` alone means laser only). Every TFMessage
+topic (``/tf``, ``/tf_static``: static when the name ends in ``tf_static``) and every
+nav_msgs/Odometry topic is always read. A depth Image is paired with the CameraInfo topic next
+to it (``.../camera_info``), else with the log's only CameraInfo topic; the latest CameraInfo
+seen is used; images before any CameraInfo are counted in ``skipped``.
+
+Errors: a missing, empty or unrecognized path raises ``InputError``; an unreadable log raises
+``LogReadError``; bad topic names raise ``InputError`` listing what the log has. A log that is
+cut off or corrupt is read up to the damage; at the end of the stream ``messages()`` raises
+``TruncatedLogError`` (a ``LogReadError``) saying where reading stopped, unless
+``allow_truncated`` is set, in which case ``stats.stopped_at`` records it. A message that cannot
+be decoded, or a LaserScan whose ranges do not match its angles, raises ``LogReadError`` naming
+the topic, message index (0-based, per topic and file) and file.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections import Counter
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from ..errors import InputError, LogReadError
+from . import decode as dec
+from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
+from .sources import Source, TopicInfo, normalize_type, open_source
+
+__all__ = [
+    "open_logs", "LogSet", "TopicInfo", "TopicSelection", "select_topics", "TruncatedLogError",
+    "normalize_type", "SCAN", "CLOUD", "IMAGE", "CAMERA_INFO", "TF_TYPES", "ODOMETRY",
+]
+
+SCAN = "sensor_msgs/msg/LaserScan"
+CLOUD = "sensor_msgs/msg/PointCloud2"
+IMAGE = "sensor_msgs/msg/Image"
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+ODOMETRY = "nav_msgs/msg/Odometry"
+
+Frame = ScanFrame | CloudFrame | DepthFrame | TfSample | OdometrySample
+
+
+class TruncatedLogError(LogReadError):
+    """A log ended early or is corrupt; everything before the damage was yielded."""
+
+
+@dataclass
+class TopicSelection:
+    """Which topics a replay reads, and why the others are not used."""
+
+    scans: list[str] = field(default_factory=list)
+    clouds: list[str] = field(default_factory=list)
+    depths: dict[str, str] = field(default_factory=dict)  # depth image topic -> its CameraInfo topic
+    tf: list[str] = field(default_factory=list)
+    static_tf: list[str] = field(default_factory=list)  # subset of tf
+    odometry: list[str] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)  # topic -> reason
+
+    @property
+    def sensor_topics(self) -> list[str]:
+        return [*self.scans, *self.clouds, *self.depths]
+
+    @property
+    def topics(self) -> set[str]:
+        """Every topic to read (sensors, their CameraInfo, tf and odometry)."""
+        return {*self.sensor_topics, *self.depths.values(), *self.tf, *self.odometry}
+
+
+def _listing(topics: Mapping[str, TopicInfo], limit: int = 25) -> str:
+    items = [f"{t.name} ({t.msgtype})" for t in sorted(topics.values(), key=lambda t: t.name)]
+    more = f", ... {len(items) - limit} more" if len(items) > limit else ""
+    return ", ".join(items[:limit]) + more if items else "none"
+
+
+def _camera_info_for(image_topic: str, topics: Mapping[str, TopicInfo]) -> str | None:
+    sibling = image_topic.rsplit("/", 1)[0] + "/camera_info"
+    if sibling in topics and topics[sibling].msgtype == CAMERA_INFO:
+        return sibling
+    infos = [t.name for t in topics.values() if t.msgtype == CAMERA_INFO]
+    return infos[0] if len(infos) == 1 else None
+
+
+def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_topics: Sequence[str] = (),
+                  cloud_topics: Sequence[str] = (), depth_topics: Sequence[str] = (), *,
+                  require_sensor: bool = True, source: str = "the log") -> TopicSelection:
+    """Choose the topics a replay uses (see the module doc). ``source`` names the log(s) in errors."""
+    if not isinstance(topics, Mapping):
+        topics = {t.name: t for t in topics}
+    sel = TopicSelection()
+    for t in sorted(topics.values(), key=lambda t: t.name):
+        if t.msgtype in TF_TYPES:
+            sel.tf.append(t.name)
+            if t.name.rstrip("/").endswith("tf_static"):
+                sel.static_tf.append(t.name)
+        elif t.msgtype == ODOMETRY:
+            sel.odometry.append(t.name)
+
+    named = {SCAN: list(scan_topics), CLOUD: list(cloud_topics), IMAGE: list(depth_topics)}
+    option = {SCAN: "--scan-topic", CLOUD: "--cloud-topic", IMAGE: "--depth-topic"}
+    label = {SCAN: "LaserScan", CLOUD: "PointCloud2", IMAGE: "Image"}
+    exclusive = any(named.values())
+    chosen: dict[str, list[str]] = {SCAN: [], CLOUD: [], IMAGE: []}
+    for msgtype, names in named.items():
+        for name in names:
+            key = name if name in topics else ("/" + name if "/" + name in topics else None)
+            of_type = [t.name for t in topics.values() if t.msgtype == msgtype]
+            if key is None:
+                raise InputError(
+                    f"{option[msgtype]} {name}: {source} has no topic {name}; its {label[msgtype]} topics: "
+                    f"{', '.join(sorted(of_type)) or 'none'}; all topics: {_listing(topics)}")
+            if topics[key].msgtype != msgtype:
+                raise InputError(
+                    f"{option[msgtype]} {name}: topic {key} in {source} is {topics[key].msgtype}, not "
+                    f"{label[msgtype]}; its {label[msgtype]} topics: {', '.join(sorted(of_type)) or 'none'}")
+            if key not in chosen[msgtype]:
+                chosen[msgtype].append(key)
+
+    for t in sorted(topics.values(), key=lambda t: t.name):
+        if t.msgtype not in chosen:
+            continue
+        picked = t.name in chosen[t.msgtype]
+        if exclusive and not picked:
+            sel.skipped[t.name] = (f"{label[t.msgtype]} not chosen (only the topics named with --scan-topic/"
+                                   f"--cloud-topic/--depth-topic are used)")
+            continue
+        if t.msgtype == SCAN:
+            sel.scans.append(t.name)
+        elif t.msgtype == CLOUD:
+            sel.clouds.append(t.name)
+        else:
+            if not picked and "depth" not in t.name.lower():
+                sel.skipped[t.name] = ("Image whose name does not say depth (a colour camera?); "
+                                       "if it is 16UC1/32FC1 depth, choose it with --depth-topic")
+                continue
+            info = _camera_info_for(t.name, topics)
+            if info is None:
+                why = (f"depth Image without CameraInfo: no {t.name.rsplit('/', 1)[0]}/camera_info and not "
+                       f"exactly one CameraInfo topic in {source}")
+                if picked:
+                    raise InputError(f"--depth-topic {t.name}: {why}; a depth image cannot be placed "
+                                     f"without its camera intrinsics")
+                sel.skipped[t.name] = why
+                continue
+            sel.depths[t.name] = info
+
+    if require_sensor and not sel.sensor_topics:
+        raise InputError(f"no usable LaserScan, PointCloud2 or depth Image topic in {source}; its topics: "
+                         f"{_listing(topics)}" + (f"; skipped: {', '.join(f'{k}: {v}' for k, v in sel.skipped.items())}"
+                                                  if sel.skipped else ""))
+    return sel
+
+
+class LogSet:
+    """One or several open logs; use as a context manager or call ``close()``."""
+
+    def __init__(self, paths: Sequence[Path], sources: list[Source], allow_truncated: bool):
+        self.paths = list(paths)
+        self.sources = sources
+        self.allow_truncated = allow_truncated
+        self.stats = ReadStats()
+        self.skipped: Counter[str] = Counter()
+        self.topics: dict[str, TopicInfo] = {}
+        for src in sources:
+            for t in src.topics.values():
+                have = self.topics.get(t.name)
+                if have is None:
+                    self.topics[t.name] = TopicInfo(t.name, t.msgtype, t.count, t.first_ns, t.last_ns)
+                else:
+                    have.count += t.count
+                    if t.first_ns is not None:
+                        have.first_ns = t.first_ns if have.first_ns is None else min(have.first_ns, t.first_ns)
+                    if t.last_ns is not None:
+                        have.last_ns = t.last_ns if have.last_ns is None else max(have.last_ns, t.last_ns)
+        starts = [s.start_ns for s in sources if s.start_ns is not None]
+        ends = [s.end_ns for s in sources if s.end_ns is not None]
+        self.start_ns: int | None = min(starts) if starts else None
+        self.end_ns: int | None = max(ends) if ends else None
+
+    @property
+    def name(self) -> str:
+        return ", ".join(str(p) for p in self.paths)
+
+    @property
+    def formats(self) -> list[str]:
+        return [s.fmt for s in self.sources]
+
+    def select(self, scan_topics: Sequence[str] = (), cloud_topics: Sequence[str] = (),
+               depth_topics: Sequence[str] = (), *, require_sensor: bool = True) -> TopicSelection:
+        return select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
+                             require_sensor=require_sensor, source=self.name)
+
+    def raw(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any, str]]:
+        """``(topic, log_time_ns, decode, where)`` for ``topics`` in log-time order, undecoded:
+        ``decode()`` returns the deserialized message. Cheap: use it to count. Truncation is
+        handled as in ``messages``."""
+        wanted = set(topics)
+        streams = [self._tagged(src, wanted) for src in self.sources]
+        for t, topic, decode, where in heapq.merge(*streams, key=lambda x: x[0]):
+            n = self.stats.messages_per_topic
+            n[topic] = n.get(topic, 0) + 1
+            yield topic, t, decode, where
+        self._finish()
+
+    @staticmethod
+    def _tagged(src: Source, wanted: set[str]) -> Iterator[tuple[int, str, Any, str]]:
+        for m in src.iter(wanted):
+            yield m.log_time_ns, m.topic, m.decode, f"on {m.topic}, message index {m.index} in {src.path}"
+
+    def _finish(self) -> None:
+        stops = [s.stopped_at for s in self.sources if s.stopped_at]
+        if not stops:
+            return
+        self.stats.stopped_at = "; ".join(stops)
+        if not self.allow_truncated:
+            raise TruncatedLogError(f"log is truncated or corrupt: {self.stats.stopped_at}; to use what was "
+                                    f"read before that point, pass --allow-truncated")
+
+    def messages(self, selection: TopicSelection | None = None) -> Iterator[tuple[str, int, Frame]]:
+        """``(topic, log_time_ns, item)`` in log-time order; item is a ScanFrame, CloudFrame,
+        DepthFrame, TfSample (one per transform of a TFMessage) or OdometrySample."""
+        sel = selection if selection is not None else self.select()
+        kinds: dict[str, str] = {}
+        for t in sel.scans:
+            kinds[t] = "scan"
+        for t in sel.clouds:
+            kinds[t] = "cloud"
+        for t in sel.odometry:
+            kinds[t] = "odom"
+        for t in sel.tf:
+            kinds[t] = "tf"
+        infos_wanted: dict[str, list[str]] = {}
+        for image, info in sel.depths.items():
+            kinds[image] = "depth"
+            infos_wanted.setdefault(info, []).append(image)
+        for info in infos_wanted:
+            kinds.setdefault(info, "info")
+        static = set(sel.static_tf)
+        latest_info: dict[str, Any] = {}
+        for topic, t, decode, where in self.raw(kinds):
+            kind = kinds[topic]
+            try:
+                msg = decode()
+            except LogReadError as err:
+                raise LogReadError(f"cannot decode the message {where}: {err}") from None
+            except Exception as err:  # noqa: BLE001 - deserializer errors on damaged data
+                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                raise LogReadError(f"cannot decode the message {where} ({reason}); the log is corrupt: "
+                                   f"leave this topic out with --scan-topic/--cloud-topic/--depth-topic") from None
+            if kind == "info":
+                latest_info[topic] = msg
+            elif kind == "scan":
+                yield topic, t, dec.decode_scan(msg, topic, where)
+            elif kind == "cloud":
+                yield topic, t, dec.decode_cloud(msg, topic, where)
+            elif kind == "depth":
+                info = latest_info.get(sel.depths[topic])
+                if info is None:
+                    self.skipped[f"depth image on {topic} before any CameraInfo on {sel.depths[topic]}"] += 1
+                    continue
+                yield topic, t, dec.decode_depth(msg, info, topic, where)
+            elif kind == "tf":
+                for s in dec.decode_tf(msg, static=topic in static):
+                    yield topic, t, s
+            else:
+                yield topic, t, dec.decode_odometry(msg)
+
+    def close(self) -> None:
+        for s in self.sources:
+            s.close()
+
+    def __enter__(self) -> LogSet:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False) -> LogSet:
+    """Open one or several logs as one ``LogSet`` (see the module doc)."""
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("no log given; give a ROS 1 .bag, a ROS 2 bag folder or an .mcap file")
+    sources: list[Source] = []
+    try:
+        for p in paths:
+            sources.append(open_source(p))
+    except BaseException:
+        for s in sources:
+            s.close()
+        raise
+    return LogSet(paths, sources, allow_truncated)
