@@ -27,8 +27,9 @@ META_MAX = 1
 
 
 def pos_to_coord(points: np.ndarray, resolution: float) -> np.ndarray:
-    """World positions (..., 3) to integer voxel keys (..., 3): floor(p / r)."""
-    return np.floor(np.asarray(points, dtype=np.float64) / resolution).astype(np.int64)
+    """World positions (..., 3) to integer voxel keys (..., 3): floor(p * (1 / r)), computed as
+    the ray-casting kernel and OctoMap compute it, so boundaries fall the same way."""
+    return np.floor(np.asarray(points, dtype=np.float64) * (1.0 / resolution)).astype(np.int64)
 
 
 def coord_to_pos(coords: np.ndarray, resolution: float) -> np.ndarray:

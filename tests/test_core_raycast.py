@@ -1,0 +1,164 @@
+"""Ray casting into O, checked against hand-computed voxels and OctoMap's rules."""
+
+import math
+
+import numpy as np
+import pytest
+
+from ltmap_cli.core.config import MapConfig
+from ltmap_cli.core.grid import pos_to_coord
+from ltmap_cli.core.layers import LayeredMap
+
+HIT = math.log(0.7 / 0.3)
+MISS = math.log(0.4 / 0.6)
+R = 0.05
+
+
+def centre(i, j, k, r=R):
+    return [(i + 0.5) * r, (j + 0.5) * r, (k + 0.5) * r]
+
+
+def new_map(**sensor):
+    cfg = MapConfig(resolution=R)
+    cfg.sensor.ground_tolerance = -1.0  # off unless a test turns it on
+    for k, v in sensor.items():
+        setattr(cfg.sensor, k, v)
+    return LayeredMap(cfg)
+
+
+def updated(m):
+    """{key: log-odds} of every voxel ever updated."""
+    keys = m.O.voxels_where(m.O.channel("stamp") > 0)
+    vals = m.O.get("logodds", keys)
+    return {tuple(int(v) for v in k): float(x) for k, x in zip(keys, vals)}
+
+
+def test_ray_along_x_marks_free_voxels_and_one_hit():
+    m = new_map()
+    res = m.integrate(centre(0, 0, 0), [centre(10, 0, 0)])
+    u = updated(m)
+    assert set(u) == {(i, 0, 0) for i in range(11)}
+    for i in range(10):
+        assert u[(i, 0, 0)] == pytest.approx(MISS, abs=1e-6)
+    assert u[(10, 0, 0)] == pytest.approx(HIT, abs=1e-6)
+    assert (res.hits, res.misses) == (1, 10)
+
+
+def test_ray_along_negative_y_and_down_z_with_negative_keys():
+    m = new_map()
+    m.integrate(centre(-1, -1, 3), [centre(-1, -11, 3)])
+    u = updated(m)
+    assert set(u) == {(-1, j, 3) for j in range(-11, 0)}
+    assert u[(-1, -11, 3)] > 0 and all(u[(-1, j, 3)] < 0 for j in range(-10, 0))
+    m2 = new_map()
+    m2.integrate(centre(2, 2, 0), [centre(2, 2, -7)])
+    assert set(updated(m2)) == {(2, 2, k) for k in range(-7, 1)}
+
+
+def test_exact_diagonal_follows_octomap_tie_rule():
+    # tMax ties go to the later axis (OctoMap's strict '<'): y first, then x, alternating.
+    m = new_map()
+    m.integrate(centre(0, 0, 0), [centre(5, 5, 0)])
+    free = {k for k, v in updated(m).items() if v < 0}
+    expected = {(0, 0, 0)}
+    i = j = 0
+    while (i, j) != (4, 5):
+        if i == j:
+            j += 1
+        else:
+            i += 1
+        expected.add((i, j, 0))
+    assert free == expected and len(free) == 10
+
+
+def test_ray_across_block_boundaries_is_contiguous():
+    # blocks are 8 voxels wide: keys -12..11 cross the boundaries at -8, 0 and 8
+    m = new_map()
+    m.integrate(centre(-12, 5, 1), [centre(11, 5, 1)])
+    u = updated(m)
+    assert set(u) == {(i, 5, 1) for i in range(-12, 12)}
+    assert m.O.n_blocks == 4  # blocks -2, -1, 0, 1 (8 voxels each)
+
+
+def test_hit_in_a_frame_is_not_also_cleared_and_each_voxel_updated_once():
+    m = new_map()
+    # ray A ends in (5,0,0); ray B passes through it to (9,0,0); ray C duplicates B
+    m.integrate(centre(0, 0, 0), [centre(5, 0, 0), centre(9, 0, 0), centre(9, 0, 0)])
+    u = updated(m)
+    assert u[(5, 0, 0)] == pytest.approx(HIT, abs=1e-6)
+    assert u[(9, 0, 0)] == pytest.approx(HIT, abs=1e-6)
+    assert u[(3, 0, 0)] == pytest.approx(MISS, abs=1e-6)  # once, although three rays cross it
+    assert u[(7, 0, 0)] == pytest.approx(MISS, abs=1e-6)
+
+
+def test_clamping_to_configured_bounds():
+    m = new_map()
+    for _ in range(10):
+        m.integrate(centre(0, 0, 0), [centre(6, 0, 0)])
+    u = updated(m)
+    assert u[(6, 0, 0)] == pytest.approx(3.5, abs=1e-6)
+    assert u[(2, 0, 0)] == pytest.approx(-2.0, abs=1e-6)
+    # from the clamp, 9 misses are needed to make the voxel free (3.5 / 0.405 = 8.6)
+    for n in range(1, 10):
+        m.integrate(centre(0, 0, 0), [centre(12, 0, 0)])
+        lo = updated(m)[(6, 0, 0)]
+        assert (lo > 0) == (n < 9)
+
+
+def test_max_range_cuts_the_ray_and_marks_nothing_at_the_cut():
+    m = new_map()
+    m.integrate(centre(0, 0, 0), [centre(60, 0, 0)], max_range=1.0)
+    u = updated(m)
+    # the cut point is at x = 0.025 + 1.0 = 1.025 -> voxel 20, excluded; 0..19 free
+    assert set(u) == {(i, 0, 0) for i in range(20)}
+    assert all(v < 0 for v in u.values())
+
+
+def test_no_return_ray_clears_and_marks_nothing():
+    m = new_map()
+    m.integrate(centre(0, 0, 0), [centre(8, 0, 0)], returns=[False])
+    u = updated(m)
+    assert set(u) == {(i, 0, 0) for i in range(8)} and all(v < 0 for v in u.values())
+
+
+def test_nan_points_are_dropped():
+    m = new_map()
+    r = m.integrate(centre(0, 0, 0), [[np.nan, 0.0, 0.0], centre(3, 0, 0)])
+    assert r.rays == 1 and set(updated(m)) == {(i, 0, 0) for i in range(4)}
+
+
+def test_ground_returns_clear_but_do_not_mark():
+    m = new_map(ground_tolerance=0.05)
+    origin = [0.025, 0.025, 1.0]
+    m.integrate(origin, [[2.0, 0.025, 0.03], [0.025, 2.0, 0.10]])
+    u = updated(m)
+    assert (40, 0, 0) not in u  # the floor end voxel is neither hit nor cleared
+    assert all(v < 0 for k, v in u.items() if k[2] <= 1 and k[1] == 0)
+    assert u[(0, 40, 2)] == pytest.approx(HIT, abs=1e-6)  # z = 0.10 is above the tolerance
+    assert sum(v > 0 for v in u.values()) == 1
+
+
+def test_footprint_box_is_never_marked():
+    m = new_map()
+    yaw = math.pi / 2
+    pose = np.eye(4)
+    pose[:3, :3] = [[math.cos(yaw), -math.sin(yaw), 0], [math.sin(yaw), math.cos(yaw), 0], [0, 0, 1]]
+    pose[:3, 3] = [1.0, 1.0, 0.0]
+    inside = [1.1, 1.2, 0.5]  # robot frame (0.2, -0.1, 0.5): inside the default 0.25 box
+    outside = [1.0, 1.4, 0.5]  # robot frame (0.4, 0, 0.5): outside
+    m.integrate([1.0, 1.0, 0.5], [inside, outside], robot_pose=pose)
+    occ = {tuple(k) for k in m.occupied_keys("O").tolist()}
+    assert occ == {(20, 28, 10)}
+
+
+def test_storage_grows_while_integrating_many_blocks():
+    m = new_map()
+    rng = np.random.default_rng(1)
+    ang = rng.uniform(-np.pi, np.pi, 3000)
+    pts = np.stack([20 * np.cos(ang), 20 * np.sin(ang), np.full_like(ang, 0.3)], axis=1)
+    r = m.integrate([0.0, 0.0, 0.3], pts)
+    expected = {tuple(k) for k in pos_to_coord(pts, R).tolist()}
+    assert r.hits == len(expected)
+    assert m.O.n_blocks > 1024  # beyond the initial pool: grown mid-frame and resumed
+    occ = {tuple(k) for k in m.occupied_keys("O").tolist()}
+    assert occ == expected
