@@ -173,10 +173,11 @@ def yaw_quat(yaw: float) -> tuple[float, float, float, float]:
 
 
 def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
-              extra_types: dict[str, str] | None = None) -> Path:
+              extra_types: dict[str, str] | None = None, chunk_size: int = 1024 * 1024) -> Path:
     """Write ``messages`` (in the given order) as a log of format ``fmt`` at ``path``.
 
     ``path`` is the bag file, the ROS 2 bag folder or the .mcap file; it must not exist.
+    ``chunk_size`` (bytes) applies to standalone MCAP: small values give several chunks.
     Returns ``path``.
     """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -219,7 +220,7 @@ def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
         from mcap_ros2.writer import Writer as McapRos2Writer
 
         with path.open("wb") as f:
-            w = McapRos2Writer(f)
+            w = McapRos2Writer(f, chunk_size=chunk_size)
             schemas: dict[str, Any] = {}
             for m in messages:
                 if m.msgtype not in schemas:
@@ -234,7 +235,7 @@ def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
 
         classes: dict[str, Any] = {}
         with path.open("wb") as f:
-            w = McapRos1Writer(f)
+            w = McapRos1Writer(f, chunk_size=chunk_size)
             for m in messages:
                 r1 = _ros1_name(m.msgtype)
                 if r1 not in classes:

@@ -214,8 +214,15 @@ class LogSet:
 
     def select(self, scan_topics: Sequence[str] = (), cloud_topics: Sequence[str] = (),
                depth_topics: Sequence[str] = (), *, require_sensor: bool = True) -> TopicSelection:
-        return select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
-                             require_sensor=require_sensor, source=self.name)
+        stops = [s.stopped_at for s in self.sources if s.stopped_at]
+        try:
+            return select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
+                                 require_sensor=require_sensor, source=self.name)
+        except InputError:
+            if stops:  # the damage is the real problem
+                raise TruncatedLogError(f"log is truncated or corrupt and has no usable sensor topic before "
+                                        f"the damage: {'; '.join(stops)}") from None
+            raise
 
     def raw(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any, str]]:
         """``(topic, log_time_ns, decode, where)`` for ``topics`` in log-time order, undecoded:
@@ -313,7 +320,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     sources: list[Source] = []
     try:
         for p in paths:
-            sources.append(open_source(p))
+            sources.extend(open_source(p))
     except BaseException:
         for s in sources:
             s.close()

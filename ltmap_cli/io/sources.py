@@ -17,6 +17,7 @@ yielding and sets ``stopped_at`` to where reading stopped; it never raises mid-s
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -62,7 +63,10 @@ def _fix_ros1_msgdef(text: str) -> str:
 
 def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -> str:
     where = f" near byte {offset}" if offset is not None else ""
-    reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+    if isinstance(err, (struct.error, EOFError)) or type(err).__name__ == "EndOfFile":
+        reason = "the file ends in the middle of a record"
+    else:
+        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
     return f"{path}: reading stopped after {count} messages{where} ({reason})"
 
 
@@ -337,8 +341,7 @@ class Ros2BagSource(Source):
         self.path = path
         self.reader = Reader(path)
         self.reader.open()  # errors handled by the caller
-        storage = "mcap" if any(p.suffix == ".mcap" for p in path.iterdir()) else "sqlite3"
-        self.fmt = f"ros2-{storage}"
+        self.fmt = "ros2-sqlite3"
         defs: dict[str, tuple[str, str]] = {}
         self.topics = {}
         for c in self.reader.connections:
@@ -521,8 +524,8 @@ def _merge_topic(topics: dict[str, TopicInfo], info: TopicInfo) -> None:
 _KINDS = "give a ROS 1 .bag file, a ROS 2 bag folder (with metadata.yaml) or an .mcap file"
 
 
-def open_source(path: Path) -> Source:
-    """Open one log; ``InputError`` / ``LogReadError`` name the file and what to do."""
+def open_source(path: Path) -> list[Source]:
+    """Open one log (a ROS 2 bag folder may give several sources); ``InputError`` / ``LogReadError`` name the file and what to do."""
     if not path.exists():
         raise InputError(f"log not found: {path}; {_KINDS}")
     if path.is_file() and (path.name == "metadata.yaml" or path.suffix == ".db3") \
@@ -541,31 +544,28 @@ def open_source(path: Path) -> Source:
             raise InputError(f"{path} is a ROS 1 bag of an unsupported version ({head[:12]!r}); "
                              f"only bag format 2.0 is read: migrate it with `rosbag fix`")
         try:
-            return Ros1BagSource(path)
+            return [Ros1BagSource(path)]
         except _NeedsStreaming:
-            return Ros1StreamSource(path)
+            return [Ros1StreamSource(path)]
     if head.startswith(MCAP_MAGIC[:6]):
-        return McapSource(path)
+        return [McapSource(path)]
     if head.startswith(SQLITE_MAGIC):
         return _open_ros2(path)
     raise InputError(f"{path} is not a robot log (it starts with {head[:8]!r}); {_KINDS}")
 
 
-def _open_ros2(path: Path) -> Source:
+def _open_ros2(path: Path) -> list[Source]:
+    mcaps = sorted(path.glob("*.mcap")) if path.is_dir() else []
+    if mcaps:  # mcap storage: the mcap package streams it, and reads what a cut-off file still has
+        return [McapSource(m, fmt="ros2-mcap") for m in mcaps]
     try:
-        return Ros2BagSource(path)
+        return [Ros2BagSource(path)]
     except FileNotFoundError as err:
         raise InputError(f"ROS 2 bag {path}: {err}; the bag folder is incomplete") from None
-    except Exception as err:  # noqa: BLE001 - rosbags raises several kinds
-        mcaps = sorted(path.glob("*.mcap")) if path.is_dir() else []
-        if len(mcaps) == 1:  # e.g. a cut-off mcap storage file: stream it directly
-            try:
-                return McapSource(mcaps[0], fmt="ros2-mcap")
-            except Exception:  # noqa: BLE001
-                pass
+    except Exception as err:  # noqa: BLE001 - rosbags and sqlite3 raise several kinds
         reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-        raise LogReadError(f"cannot read ROS 2 bag {path}: {reason}; the bag is corrupt "
-                           f"(check it with `ros2 bag info`)") from None
+        raise LogReadError(f"cannot read ROS 2 bag {path}: {reason}; the bag is corrupt or cut off and "
+                           f"nothing in it can be read") from None
 
 
 __all__ = ["TopicInfo", "RawMessage", "Source", "open_source", "normalize_type"]

@@ -1,0 +1,315 @@
+"""A tf buffer in pure numpy: the tree of frames, interpolated lookups, user mounts.
+
+Conventions: a sample ``parent -> child`` gives the pose of ``child`` in ``parent``
+(``p_parent = T @ p_child``). ``lookup(target, source, stamp_ns)`` returns the 4x4 float64 ``T``
+with ``p_target = T @ p_source`` (tf2's ``lookupTransform(target, source, time)``).
+
+- Per edge, samples are kept sorted by stamp (bisect). A lookup interpolates between the two
+  bracketing samples: translation linearly, rotation by SLERP. There is no extrapolation: a stamp
+  before an edge's first or after its last sample fails, unless within ``tolerance_ns`` of it
+  (default 0: exact stamps only), in which case the end sample is used.
+- ``/tf_static`` samples (``static=True``) and user mounts are timeless: real logs stamp
+  ``/tf_static`` hours before the log.
+- Frame names are normalized: ``/laser`` and ``laser`` are one frame.
+- Each edge has one source: the first of /tf, /tf_static, odometry or a user mount to provide it.
+  Samples of the same edge from another source are ignored (counted in ``ignored``), so
+  ``nav_msgs/Odometry`` that duplicates ``/tf`` does not fight it; a user mount (``--tf``)
+  always wins over what the log records.
+- Memory is bounded: samples older than ``window_ns`` before an edge's newest sample are dropped.
+- A failed lookup raises ``LookupFailure`` (a ``TransformError``) whose ``reason`` names the
+  missing edge and what to do, and contains no stamp, so callers can count skipped frames by it.
+"""
+
+from __future__ import annotations
+
+import bisect
+import math
+import re
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors import InputError, TransformError
+from .io.frames import OdometrySample, TfSample
+
+MOUNT_FORM = "parent:child=x,y,z,roll,pitch,yaw (metres, radians), e.g. base_link:laser=0.1,0,0.2,0,0,0"
+
+
+class LookupFailure(TransformError):
+    """A transform could not be had. ``reason`` is stable (no stamp) for counting."""
+
+    def __init__(self, reason: str, detail: str = ""):
+        super().__init__(reason + (f" ({detail})" if detail else ""))
+        self.reason = reason
+        self.detail = detail
+
+
+def norm(frame: str) -> str:
+    return frame.strip().lstrip("/")
+
+
+def quat_to_matrix(q: np.ndarray) -> np.ndarray:
+    x, y, z, w = q / np.linalg.norm(q)
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def rpy_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """ROS fixed-axis roll, pitch, yaw (R = Rz(yaw) Ry(pitch) Rx(roll)) as (x, y, z, w)."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)
+
+
+def slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
+    q0 = q0 / np.linalg.norm(q0)
+    q1 = q1 / np.linalg.norm(q1)
+    d = float(np.dot(q0, q1))
+    if d < 0.0:  # shortest path
+        q1, d = -q1, -d
+    if d > 0.9995:
+        q = q0 + u * (q1 - q0)
+        return q / np.linalg.norm(q)
+    theta = math.acos(min(d, 1.0))
+    s = math.sin(theta)
+    return (math.sin((1 - u) * theta) / s) * q0 + (math.sin(u * theta) / s) * q1
+
+
+def make_matrix(translation, rotation_xyzw) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = quat_to_matrix(np.asarray(rotation_xyzw, dtype=np.float64))
+    m[:3, 3] = translation
+    return m
+
+
+def invert(m: np.ndarray) -> np.ndarray:
+    out = np.eye(4)
+    r = m[:3, :3].T
+    out[:3, :3] = r
+    out[:3, 3] = -r @ m[:3, 3]
+    return out
+
+
+def parse_mount(spec: str) -> TfSample:
+    """``"base_link:laser=x,y,z,roll,pitch,yaw"`` -> a static TfSample; bad text -> InputError."""
+    m = re.fullmatch(r"\s*([^:=\s]+)\s*:\s*([^:=\s]+)\s*=\s*(.+?)\s*", spec or "")
+    if not m:
+        raise InputError(f"bad --tf {spec!r}: expected {MOUNT_FORM}")
+    parent, child, nums = norm(m.group(1)), norm(m.group(2)), m.group(3).split(",")
+    try:
+        vals = [float(v) for v in nums]
+    except ValueError:
+        raise InputError(f"bad --tf {spec!r}: {m.group(3)!r} are not 6 numbers; expected {MOUNT_FORM}") from None
+    if len(vals) != 6 or not all(math.isfinite(v) for v in vals):
+        raise InputError(f"bad --tf {spec!r}: got {len(vals)} values, need 6 finite numbers; expected {MOUNT_FORM}")
+    if not parent or not child or parent == child:
+        raise InputError(f"bad --tf {spec!r}: parent and child frames must differ; expected {MOUNT_FORM}")
+    return TfSample(0, parent, child, (vals[0], vals[1], vals[2]), rpy_to_quat(*vals[3:]), static=True)
+
+
+@dataclass
+class _Edge:
+    parent: str
+    source: str  # "tf" | "static" | "odom" | "mount"
+    times: list[int] = field(default_factory=list)
+    values: list[np.ndarray] = field(default_factory=list)  # (7,) tx ty tz qx qy qz qw
+
+    @property
+    def timeless(self) -> bool:
+        return self.source in ("static", "mount")
+
+
+class TfBuffer:
+    """See the module doc. ``window_ns`` bounds the history kept per edge (default 120 s)."""
+
+    def __init__(self, tolerance_ns: int = 0, window_ns: int = 120 * 10**9):
+        self.tolerance_ns = int(tolerance_ns)
+        self.window_ns = int(window_ns)
+        self.edges: dict[str, _Edge] = {}  # child -> edge to its parent
+        self.ignored: Counter[str] = Counter()  # "parent -> child from <source>" -> samples ignored
+
+    # ------------------------------------------------------------------ filling
+    def add(self, sample: TfSample | OdometrySample) -> None:
+        if isinstance(sample, OdometrySample):
+            source = "odom"
+        else:
+            source = "static" if sample.static else "tf"
+        self._add(norm(sample.parent), norm(sample.child), sample.stamp_ns, sample.translation,
+                  sample.rotation_xyzw, source)
+
+    def add_mount(self, spec: str) -> TfSample:
+        """Add a user mount ``parent:child=x,y,z,roll,pitch,yaw``; it overrides the log's edge."""
+        s = parse_mount(spec)
+        self.edges.pop(s.child, None)
+        self._add(s.parent, s.child, 0, s.translation, s.rotation_xyzw, "mount")
+        return s
+
+    def _add(self, parent: str, child: str, stamp: int, t, q, source: str) -> None:
+        if parent == child:
+            return
+        edge = self.edges.get(child)
+        if edge is not None and (edge.source != source or edge.parent != parent):
+            if edge.source == "mount" or edge.source != source:
+                self.ignored[f"{parent} -> {child} from {source}"] += 1
+                return
+            edge = None  # same source re-parents the child: tf2 keeps the latest parent
+        if edge is None:
+            edge = self.edges[child] = _Edge(parent, source)
+        value = np.array([*t, *q], dtype=np.float64)
+        if edge.timeless:
+            edge.times, edge.values = [0], [value]
+            return
+        i = bisect.bisect_right(edge.times, stamp)
+        if i > 0 and edge.times[i - 1] == stamp:
+            edge.values[i - 1] = value
+            return
+        edge.times.insert(i, stamp)
+        edge.values.insert(i, value)
+        if len(edge.times) > 64 and edge.times[0] < edge.times[-1] - 2 * self.window_ns:
+            cut = bisect.bisect_left(edge.times, edge.times[-1] - self.window_ns) - 1
+            if cut > 0:
+                del edge.times[:cut]
+                del edge.values[:cut]
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def frames(self) -> set[str]:
+        out = set(self.edges)
+        out.update(e.parent for e in self.edges.values())
+        return out
+
+    def has_edge(self, parent: str, child: str) -> bool:
+        e = self.edges.get(norm(child))
+        return e is not None and e.parent == norm(parent)
+
+    def _chain(self, frame: str) -> list[str]:
+        chain = [frame]
+        seen = {frame}
+        while chain[-1] in self.edges:
+            p = self.edges[chain[-1]].parent
+            if p in seen:  # a cycle in recorded tf: stop
+                break
+            chain.append(p)
+            seen.add(p)
+        return chain
+
+    def root(self, frame: str) -> str:
+        return self._chain(norm(frame))[-1]
+
+    def _edge_matrix(self, child: str, stamp: int) -> np.ndarray:
+        e = self.edges[child]
+        name = f"{e.parent} -> {child}"
+        if e.timeless:
+            v = e.values[0]
+        else:
+            ts = e.times
+            i = bisect.bisect_left(ts, stamp)
+            if i < len(ts) and ts[i] == stamp:
+                v = e.values[i]
+            elif i == 0:
+                if ts[0] - stamp > self.tolerance_ns:
+                    raise LookupFailure(f"transform {name} not available yet (stamp before its first sample)",
+                                        f"{(ts[0] - stamp) / 1e9:.3f} s early")
+                v = e.values[0]
+            elif i == len(ts):
+                if stamp - ts[-1] > self.tolerance_ns:
+                    raise LookupFailure(f"transform {name} not available (stamp after its last sample; "
+                                        f"no extrapolation)", f"{(stamp - ts[-1]) / 1e9:.3f} s late")
+                v = e.values[-1]
+            else:
+                t0, t1 = ts[i - 1], ts[i]
+                u = (stamp - t0) / (t1 - t0)
+                a, b = e.values[i - 1], e.values[i]
+                v = np.concatenate([a[:3] + u * (b[:3] - a[:3]), slerp(a[3:], b[3:], u)])
+        return make_matrix(v[:3], v[3:])
+
+    def lookup(self, target_frame: str, source_frame: str, stamp_ns: int) -> np.ndarray:
+        """``T`` (4x4 float64) with ``p_target = T @ p_source`` at ``stamp_ns``; LookupFailure if not."""
+        target, source = norm(target_frame), norm(source_frame)
+        if target == source:
+            return np.eye(4)
+        frames = self.frames
+        for f in (source, target):
+            if f not in frames:
+                raise LookupFailure(self._missing_reason(target, source, f))
+        up_s, up_t = self._chain(source), self._chain(target)
+        common = next((f for f in up_s if f in set(up_t)), None)
+        if common is None:
+            raise LookupFailure(
+                f"no transform {target} -> {source}: {source} is under {up_s[-1]} and {target} under "
+                f"{up_t[-1]}, and no tf connects them; give the missing edge with "
+                f"--tf {up_t[-1] if up_t[-1] != target else target}:{up_s[-1]}=x,y,z,roll,pitch,yaw")
+        m_common_source = np.eye(4)
+        for child in up_s[: up_s.index(common)]:
+            m_common_source = self._edge_matrix(child, stamp_ns) @ m_common_source
+        m_common_target = np.eye(4)
+        for child in up_t[: up_t.index(common)]:
+            m_common_target = self._edge_matrix(child, stamp_ns) @ m_common_target
+        return invert(m_common_target) @ m_common_source
+
+    def _missing_reason(self, target: str, source: str, missing: str) -> str:
+        frames = self.frames
+        if missing == source:
+            parent = next((f for f in ("base_link", "base_footprint") if f in frames), target)
+            return (f"no transform {parent} -> {source}: frame {source} is not in tf; give its mount with "
+                    f"--tf {parent}:{source}=x,y,z,roll,pitch,yaw")
+        known = ", ".join(sorted(frames)[:12]) or "none"
+        return (f"no transform {target} -> {source}: frame {target} is not in tf (frames: {known}); "
+                f"choose another with --fixed-frame or give it with --tf")
+
+    def try_lookup(self, target_frame: str, source_frame: str, stamp_ns: int) -> tuple[np.ndarray | None, str | None]:
+        """``(T, None)`` or ``(None, reason)``: the reason names the missing edge, without a stamp."""
+        try:
+            return self.lookup(target_frame, source_frame, stamp_ns), None
+        except LookupFailure as f:
+            return None, f.reason
+
+    def fixed_frame(self, requested: str = "") -> str:
+        """``requested`` if given (it must be in tf), else ``map`` when tf has it, else ``odom``."""
+        return choose_fixed_frame(self.frames, requested)
+
+    def tree_text(self, indent: str = "  ") -> str:
+        """The frames as an indented tree; each edge shows its source and sample count."""
+        children: dict[str, list[str]] = {}
+        for child, e in self.edges.items():
+            children.setdefault(e.parent, []).append(child)
+        roots = sorted(f for f in self.frames if f not in self.edges)
+        lines: list[str] = []
+
+        def walk(frame: str, depth: int, seen: set[str]) -> None:
+            e = self.edges.get(frame)
+            if e is None:
+                note = ""
+            elif e.timeless:
+                note = f"  [{'user mount' if e.source == 'mount' else 'static'}]"
+            else:
+                note = f"  [{e.source}, {len(e.times)} samples]"
+            lines.append(f"{indent * depth}{frame}{note}")
+            for c in sorted(children.get(frame, [])):
+                if c not in seen:
+                    walk(c, depth + 1, seen | {c})
+
+        for r in roots:
+            walk(r, 0, {r})
+        return "\n".join(lines)
+
+
+def choose_fixed_frame(frames: set[str] | list[str], requested: str = "") -> str:
+    """The fixed frame for a set of frame names (as ``TfBuffer.fixed_frame``)."""
+    names = {norm(f) for f in frames}
+    if requested:
+        if norm(requested) not in names:
+            raise TransformError(f"--fixed-frame {requested}: no frame {norm(requested)} in tf (frames: "
+                                 f"{', '.join(sorted(names)) or 'none'}); choose one of them")
+        return norm(requested)
+    for f in ("map", "odom"):
+        if f in names:
+            return f
+    raise TransformError(f"tf has neither map nor odom (frames: {', '.join(sorted(names)) or 'none'}); "
+                         f"choose the fixed frame with --fixed-frame")
