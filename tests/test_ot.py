@@ -1,0 +1,191 @@
+"""OctoMap .ot files: checked against the real OctoMap library (pyoctomap)."""
+
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pyoctomap
+import pytest
+
+from ltmap_cli.errors import MapFileError
+from ltmap_cli.io.ot import morton_codes, ot_bytes, read_ot, write_ot
+
+
+def _octomap_leaves(tree, resolution):
+    """Every voxel of every leaf of a pyoctomap tree: {(i, j, k): log-odds}."""
+    out = {}
+    for it in tree.begin_leafs():
+        size = it.getSize()
+        n = int(round(size / resolution))
+        cx, cy, cz = it.getCoordinate()
+        base = [int(np.floor((c - size / 2) / resolution + 0.5)) for c in (cx, cy, cz)]
+        value = it.current_node.getLogOdds()
+        for a in range(n):
+            for b in range(n):
+                for c in range(n):
+                    out[(base[0] + a, base[1] + b, base[2] + c)] = value
+    return out
+
+
+def _as_dict(keys, values):
+    return {tuple(int(v) for v in k): float(x) for k, x in zip(keys, values)}
+
+
+def _voxel_set(seed=1):
+    rng = np.random.default_rng(seed)
+    scattered = rng.integers(-300, 300, size=(400, 3))
+    cube = np.stack(np.meshgrid(np.arange(4), np.arange(4), np.arange(4), indexing="ij"), -1).reshape(-1, 3)
+    cube = cube + [-2, 5, -9]  # straddles 0 in x: negative and positive keys in one cube
+    keys = np.unique(np.concatenate([scattered, cube, [[-32768, 0, 32767], [0, 0, 0], [-1, -1, -1]]]), axis=0)
+    logodds = rng.uniform(-2.0, 3.5, size=len(keys)).astype(np.float32)
+    return keys, logodds
+
+
+def test_file_bytes_for_two_voxels_by_hand():
+    # voxel (0,0,0) -> key 32768 (bit 15 set in x, y, z: root child 7);
+    # voxel (-1,2,3) -> keys 32767, 32770, 32771 (bit 15: 0, 1, 1 -> root child 2 + 4 = 6).
+    # The paths split at the root: 1 root + 2 * 16 nodes = 33. Pre-order: child 6 first.
+    data = ot_bytes(np.array([[0, 0, 0], [-1, 2, 3]]), np.array([0.85, -0.4], np.float32), 0.1)
+    header = b"# Octomap OcTree file\n"
+    assert data.startswith(header)
+    head, body = data.split(b"\ndata\n", 1)
+    assert b"\nid OcTree\nsize 33\nres 0.1" in head + b"\n"
+    assert len(body) == 33 * 5
+    value, mask = struct.unpack("<fB", body[:5])
+    assert value == pytest.approx(0.85) and mask == 0b1100_0000  # root: max of children
+    value, mask = struct.unpack("<fB", body[5:10])
+    assert value == pytest.approx(-0.4)  # first child of the root is child 6, the (-1,2,3) branch
+    # level 14 of (32767, 32770, 32771): bits 1, 0, 0 -> child 1
+    assert mask == 0b0000_0010
+    # the 16th node of the first branch is the leaf: mask 0
+    value, mask = struct.unpack("<fB", body[16 * 5 : 17 * 5])
+    assert (value, mask) == (pytest.approx(-0.4), 0)
+
+
+def test_morton_code_matches_octomap_child_index():
+    keys = np.array([[32768, 32767, 32771], [1, 0, 0], [0, 1, 0], [0, 0, 1], [65535, 0, 65535]])
+    codes = morton_codes(keys)
+    assert list(codes[1:4]) == [1, 2, 4]
+    for key, code in zip(keys, codes):
+        for level in range(16):
+            pos = ((key[0] >> level) & 1) + 2 * ((key[1] >> level) & 1) + 4 * ((key[2] >> level) & 1)
+            assert (int(code) >> (3 * level)) & 7 == pos
+
+
+def test_octomap_reads_what_we_write(tmp_path):
+    keys, logodds = _voxel_set()
+    path = tmp_path / "map.ot"
+    write_ot(path, keys, logodds, 0.05)
+    tree = pyoctomap.OcTree(0.1).read(str(path))
+    assert tree is not None
+    assert tree.getResolution() == pytest.approx(0.05)
+    header_size = int(path.read_bytes().split(b"\nsize ")[1].split(b"\n")[0])
+    assert tree.size() == header_size
+    assert tree.getNumLeafNodes() == len(keys)
+    leaves = _octomap_leaves(tree, 0.05)
+    ours = _as_dict(keys, logodds)
+    assert leaves.keys() == ours.keys()
+    for key, value in ours.items():
+        assert np.float32(leaves[key]) == np.float32(value), key
+    # occupancy as OctoMap judges it: occupied iff log-odds > 0 (p > 0.5)
+    occupied_octomap = {
+        tuple(int(np.floor(c / 0.05)) for c in it.getCoordinate())
+        for it in tree.begin_leafs()
+        if tree.isNodeOccupied(it)
+    }
+    assert occupied_octomap == {tuple(k) for k, v in zip(keys.tolist(), logodds) if v > 0}
+    # inner nodes hold the max of their children: the root holds the global max
+    assert np.float32(tree.getRoot().getLogOdds()) == logodds.max()
+
+
+def test_read_what_octomap_writes_with_pruned_leaves(tmp_path):
+    res = 0.1
+    tree = pyoctomap.OcTree(res)
+    # a solid 8 x 8 x 8 voxel block aligned to a depth-13 node, seen 3 times -> pruned to one leaf
+    g = (np.arange(8) + 0.5) * res
+    block = np.stack(np.meshgrid(g + 1.6, g + 0.8, g + 0.8, indexing="ij"), -1).reshape(-1, 3)
+    others = np.array([[-0.35, 0.25, 0.15], [0.45, -0.65, 0.05]])
+    for _ in range(3):
+        tree.insertPointCloud(np.concatenate([block, others]), np.array([0.0, 0.0, 0.05]))
+    depths = [it.getDepth() for it in tree.begin_leafs()]
+    assert min(depths) < 16  # the file really has pruned leaves to expand
+    path = tmp_path / "octomap.ot"
+    assert tree.write(str(path))
+    expected = _octomap_leaves(tree, res)
+    keys, logodds, resolution = read_ot(path)
+    assert resolution == res
+    assert _as_dict(keys, logodds) == pytest.approx(expected)
+    occupied = {k for k, v in expected.items() if v > 0}
+    assert len(occupied) >= 512 + 2
+    okeys, ologodds, _ = read_ot(path, occupied_only=True)
+    assert {tuple(k) for k in okeys.tolist()} == occupied
+    assert np.all(ologodds > 0)
+
+
+def test_round_trip(tmp_path):
+    keys, logodds = _voxel_set(seed=7)
+    path = tmp_path / "rt.ot"
+    write_ot(path, keys, logodds, 0.025)
+    back_keys, back_logodds, res = read_ot(path)
+    assert res == 0.025 and back_keys.dtype == np.int64 and back_logodds.dtype == np.float32
+    assert _as_dict(back_keys, back_logodds) == _as_dict(keys, logodds)
+    assert len(back_keys) == len(keys)
+
+
+def test_empty_tree(tmp_path):
+    path = tmp_path / "empty.ot"
+    write_ot(path, np.zeros((0, 3), np.int32), np.zeros(0, np.float32), 0.05)
+    tree = pyoctomap.OcTree(0.1).read(str(path))
+    assert tree.size() == 0
+    keys, logodds, res = read_ot(path)
+    assert keys.shape == (0, 3) and logodds.shape == (0,) and res == 0.05
+
+
+def test_write_rejects_bad_input(tmp_path):
+    with pytest.raises(ValueError, match="same voxel twice"):
+        write_ot(tmp_path / "a.ot", np.array([[1, 2, 3], [1, 2, 3]]), np.zeros(2, np.float32), 0.1)
+    with pytest.raises(ValueError, match=r"\[-32768, 32767\]"):
+        write_ot(tmp_path / "a.ot", np.array([[32768, 0, 0]]), np.zeros(1, np.float32), 0.1)
+    with pytest.raises(ValueError, match="shape"):
+        write_ot(tmp_path / "a.ot", np.array([[1, 2, 3]]), np.zeros(2, np.float32), 0.1)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_read_rejects_bt(tmp_path):
+    tree = pyoctomap.OcTree(0.1)
+    tree.updateNode(np.array([0.05, 0.05, 0.05]), True)
+    path = tmp_path / "map.bt"
+    assert tree.writeBinary(str(path))
+    with pytest.raises(MapFileError, match=r"map\.bt: is an OctoMap binary tree \(\.bt"):
+        read_ot(path)
+
+
+def test_read_rejects_other_tree_id(tmp_path):
+    path = tmp_path / "color.ot"
+    data = ot_bytes(np.array([[0, 0, 0]]), np.array([1.0], np.float32), 0.1)
+    path.write_bytes(data.replace(b"id OcTree", b"id ColorOcTree"))
+    with pytest.raises(MapFileError, match=r"color\.ot: OctoMap tree id is ColorOcTree, ltmap reads only 'OcTree'"):
+        read_ot(path)
+
+
+def test_read_errors(tmp_path):
+    with pytest.raises(MapFileError, match=r"nope\.ot: OctoMap file not found"):
+        read_ot(tmp_path / "nope.ot")
+    junk = tmp_path / "junk.ot"
+    junk.write_bytes(b"P5\n1 1\n255\n\x00")
+    with pytest.raises(MapFileError, match=r"junk\.ot: not an OctoMap \.ot file"):
+        read_ot(junk)
+    cut = tmp_path / "cut.ot"
+    data = ot_bytes(np.array([[0, 0, 0], [5, 5, 5]]), np.array([1.0, 2.0], np.float32), 0.1)
+    cut.write_bytes(data[:-7])
+    with pytest.raises(MapFileError, match=r"cut\.ot: OctoMap data truncated"):
+        read_ot(cut)
+    # a lone root leaf covers the whole 65536^3 key space
+    huge = tmp_path / "huge.ot"
+    huge.write_bytes(b"# Octomap OcTree file\nid OcTree\nsize 1\nres 0.1\ndata\n" + struct.pack("<fB", 1.0, 0))
+    with pytest.raises(MapFileError, match=r"huge\.ot: OctoMap tree expands to 281474976710656 voxels"):
+        read_ot(huge)
+    with pytest.raises(MapFileError, match="expands to 2 voxels, more than the 1"):
+        write_ot(cut, np.array([[0, 0, 0], [5, 5, 5]]), np.array([1.0, 2.0], np.float32), 0.1)
+        read_ot(cut, max_voxels=1)
