@@ -11,10 +11,10 @@ with ``p_target = T @ p_source`` (tf2's ``lookupTransform(target, source, time)`
 - ``/tf_static`` samples (``static=True``) and user mounts are timeless: real logs stamp
   ``/tf_static`` hours before the log.
 - Frame names are normalized: ``/laser`` and ``laser`` are one frame.
-- Each edge has one source: the first of /tf, /tf_static, odometry or a user mount to provide it.
-  Samples of the same edge from another source are ignored (counted in ``ignored``), so
-  ``nav_msgs/Odometry`` that duplicates ``/tf`` does not fight it; a user mount (``--tf``)
-  always wins over what the log records.
+- Each edge has one source. A user mount (``--tf``) beats /tf and /tf_static, which beat
+  nav_msgs/Odometry; between /tf and /tf_static the first wins. Samples from a weaker source are
+  ignored (counted in ``ignored``), so odometry that duplicates /tf does not fight it, in
+  whichever order they arrive.
 - Memory is bounded: samples older than ``window_ns`` before an edge's newest sample are dropped.
 - A failed lookup raises ``LookupFailure`` (a ``TransformError``) whose ``reason`` names the
   missing edge and what to do, and contains no stamp, so callers can count skipped frames by it.
@@ -113,6 +113,10 @@ def parse_mount(spec: str) -> TfSample:
     return TfSample(0, parent, child, (vals[0], vals[1], vals[2]), rpy_to_quat(*vals[3:]), static=True)
 
 
+# which source owns an edge that several provide: a user mount, then tf, then odometry
+_PRIORITY = {"mount": 3, "tf": 2, "static": 2, "odom": 1}
+
+
 @dataclass
 class _Edge:
     parent: str
@@ -155,10 +159,13 @@ class TfBuffer:
             return
         edge = self.edges.get(child)
         if edge is not None and (edge.source != source or edge.parent != parent):
-            if edge.source == "mount" or edge.source != source:
+            have, new = _PRIORITY[edge.source], _PRIORITY[source]
+            if new < have or (new == have and edge.source != source):
                 self.ignored[f"{parent} -> {child} from {source}"] += 1
                 return
-            edge = None  # same source re-parents the child: tf2 keeps the latest parent
+            if new > have:
+                self.ignored[f"{edge.parent} -> {child} from {edge.source}"] += len(edge.times)
+            edge = None  # a stronger source takes the edge, or the same source re-parents the child
         if edge is None:
             edge = self.edges[child] = _Edge(parent, source)
         value = np.array([*t, *q], dtype=np.float64)
@@ -262,6 +269,24 @@ class TfBuffer:
         known = ", ".join(sorted(frames)[:12]) or "none"
         return (f"no transform {target} -> {source}: frame {target} is not in tf (frames: {known}); "
                 f"choose another with --fixed-frame or give it with --tf")
+
+    def connection_problem(self, target_frame: str, source_frame: str) -> str | None:
+        """Why ``source`` can never be placed in ``target`` with the tree as it is (ignoring
+        time), or None when a chain of edges connects them."""
+        target, source = norm(target_frame), norm(source_frame)
+        if target == source:
+            return None
+        frames = self.frames
+        for f in (source, target):
+            if f not in frames:
+                return self._missing_reason(target, source, f)
+        up_s, up_t = self._chain(source), set(self._chain(target))
+        if not any(f in up_t for f in up_s):
+            try:
+                self.lookup(target, source, 0)
+            except LookupFailure as err:
+                return err.reason
+        return None
 
     def try_lookup(self, target_frame: str, source_frame: str, stamp_ns: int) -> tuple[np.ndarray | None, str | None]:
         """``(T, None)`` or ``(None, reason)``: the reason names the missing edge, without a stamp."""
