@@ -1,0 +1,150 @@
+"""TfBuffer: hand-computed interpolation, chains, inverses, static timelessness, failures, mounts."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ltmap_cli.errors import InputError, TransformError
+from ltmap_cli.io.frames import OdometrySample, TfSample
+from ltmap_cli.transforms import LookupFailure, TfBuffer, choose_fixed_frame, parse_mount, rpy_to_quat
+
+S = 1_000_000_000
+
+
+def yaw_q(yaw):
+    return (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+
+
+def yaw_of(m):
+    return math.atan2(m[1, 0], m[0, 0])
+
+
+def test_translation_midpoint_and_slerp_half_of_90_degrees():
+    b = TfBuffer()
+    b.add(TfSample(0, "odom", "base_link", (0.0, 0.0, 0.0), yaw_q(0.0)))
+    b.add(TfSample(10 * S, "odom", "base_link", (2.0, 4.0, 0.0), yaw_q(math.pi / 2)))
+    m = b.lookup("odom", "base_link", 5 * S)
+    assert m.dtype == np.float64 and m.shape == (4, 4)
+    np.testing.assert_allclose(m[:3, 3], [1.0, 2.0, 0.0], atol=1e-12)
+    assert yaw_of(m) == pytest.approx(math.pi / 4, abs=1e-12)
+    # at 1/4: translation (0.5, 1.0), yaw 22.5 degrees (SLERP is linear in angle)
+    m = b.lookup("odom", "base_link", int(2.5 * S))
+    np.testing.assert_allclose(m[:3, 3], [0.5, 1.0, 0.0], atol=1e-12)
+    assert yaw_of(m) == pytest.approx(math.pi / 8, abs=1e-12)
+
+
+def test_exact_stamps_and_no_extrapolation():
+    b = TfBuffer()
+    b.add(TfSample(1 * S, "odom", "base_link", (1.0, 0.0, 0.0), yaw_q(0)))
+    b.add(TfSample(2 * S, "odom", "base_link", (3.0, 0.0, 0.0), yaw_q(0)))
+    assert b.lookup("odom", "base_link", 1 * S)[0, 3] == 1.0
+    assert b.lookup("odom", "base_link", 2 * S)[0, 3] == 3.0
+    with pytest.raises(LookupFailure) as e:
+        b.lookup("odom", "base_link", 2 * S + 1)
+    assert "odom -> base_link" in e.value.reason and "after its last sample" in e.value.reason
+    assert isinstance(e.value, TransformError)
+    m, why = b.try_lookup("odom", "base_link", S - 1)
+    assert m is None and "before its first sample" in why
+    tol = TfBuffer(tolerance_ns=10)
+    tol.add(TfSample(1 * S, "odom", "base_link", (1.0, 0.0, 0.0), yaw_q(0)))
+    assert tol.lookup("odom", "base_link", S + 10)[0, 3] == 1.0
+    assert tol.try_lookup("odom", "base_link", S + 11)[0] is None
+
+
+def test_chain_of_three_edges_and_inverse_direction():
+    b = TfBuffer()
+    b.add(TfSample(0, "map", "odom", (1.0, 0.0, 0.0), yaw_q(math.pi / 2), static=True))
+    b.add(TfSample(0, "odom", "base_link", (0.0, 2.0, 0.0), yaw_q(0.0)))
+    b.add(TfSample(10 * S, "odom", "base_link", (0.0, 2.0, 0.0), yaw_q(0.0)))
+    b.add(TfSample(0, "base_link", "laser", (0.5, 0.0, 0.2), yaw_q(0.0), static=True))
+    m = b.lookup("map", "laser", 5 * S)
+    # laser origin: (0.5, 2, 0.2) in odom; odom is rotated 90 deg and moved (1, 0) in map:
+    # (x, y) -> (1 - y, x) = (1 - 2, 0.5) = (-1, 0.5)
+    np.testing.assert_allclose(m @ [0, 0, 0, 1], [-1.0, 0.5, 0.2, 1.0], atol=1e-12)
+    # a point 1 m ahead of the laser is 1 m along map +y
+    np.testing.assert_allclose(m @ [1, 0, 0, 1], [-1.0, 1.5, 0.2, 1.0], atol=1e-12)
+    inv = b.lookup("laser", "map", 5 * S)
+    np.testing.assert_allclose(inv @ m, np.eye(4), atol=1e-12)
+    # between siblings: laser and another child of base_link
+    b.add(TfSample(0, "base_link", "camera", (0.0, 0.5, 0.0), yaw_q(0.0), static=True))
+    np.testing.assert_allclose(b.lookup("camera", "laser", 5 * S)[:3, 3], [0.5, -0.5, 0.2], atol=1e-12)
+
+
+def test_static_is_timeless_and_slashes_are_one_frame():
+    b = TfBuffer()
+    # stamped 4 hours before the log, as in the comprobo22 bag
+    b.add(TfSample(5 * S, "/base_link", "/rplidar_link", (0.1, 0.0, 0.3), yaw_q(math.pi), static=True))
+    b.add(TfSample(4 * 3600 * S, "odom", "base_link", (1.0, 0.0, 0.0), yaw_q(0)))
+    m = b.lookup("/odom", "rplidar_link", 4 * 3600 * S)
+    np.testing.assert_allclose(m[:3, 3], [1.1, 0.0, 0.3], atol=1e-12)
+    assert yaw_of(m) == pytest.approx(math.pi, abs=1e-12)
+    assert b.frames == {"odom", "base_link", "rplidar_link"}
+
+
+def test_missing_edge_reasons_name_the_edge_and_the_fix():
+    b = TfBuffer()
+    b.add(TfSample(0, "odom", "base_link", (0, 0, 0), yaw_q(0)))
+    m, why = b.try_lookup("odom", "laser", 0)
+    assert m is None
+    assert why == ("no transform base_link -> laser: frame laser is not in tf; give its mount with "
+                   "--tf base_link:laser=x,y,z,roll,pitch,yaw")
+    b.add(TfSample(0, "imu_base", "imu", (0, 0, 0), yaw_q(0), static=True))
+    with pytest.raises(LookupFailure, match=r"no transform odom -> imu: .*--tf odom:imu_base="):
+        b.lookup("odom", "imu", 0)
+    assert b.connection_problem("odom", "imu").startswith("no transform odom -> imu")
+    assert b.connection_problem("odom", "base_link") is None
+
+
+def test_mount_parsing_and_override():
+    s = parse_mount("base_link:/laser=0.1,0,0.2,0,0,1.5707963267948966")
+    assert (s.parent, s.child, s.static) == ("base_link", "laser", True)
+    assert s.translation == (0.1, 0.0, 0.2)
+    np.testing.assert_allclose(s.rotation_xyzw, yaw_q(math.pi / 2), atol=1e-12)
+    for bad in ["base_link:laser=1,2,3", "base_link-laser=1,2,3,4,5,6", "a:b=1,2,3,4,5,x", "a:a=0,0,0,0,0,0", ""]:
+        with pytest.raises(InputError, match=r"parent:child=x,y,z,roll,pitch,yaw"):
+            parse_mount(bad)
+    b = TfBuffer()
+    b.add(TfSample(0, "base_link", "laser", (9.0, 9.0, 9.0), yaw_q(0), static=True))
+    b.add_mount("base_link:laser=1,0,0,0,0,0")
+    b.add(TfSample(0, "base_link", "laser", (9.0, 9.0, 9.0), yaw_q(0), static=True))  # log again: ignored
+    assert b.lookup("base_link", "laser", 123)[0, 3] == 1.0
+    assert b.ignored["base_link -> laser from static"] == 1
+
+
+def test_rpy_matches_ros_convention():
+    # roll 90 deg then yaw 90 deg (fixed axes): x axis -> +y, z axis -> +x
+    q = np.array(rpy_to_quat(math.pi / 2, 0.0, math.pi / 2))
+    b = TfBuffer()
+    b.add(TfSample(0, "a", "b", (0, 0, 0), tuple(q), static=True))
+    m = b.lookup("a", "b", 0)
+    np.testing.assert_allclose(m[:3, 0], [0, 1, 0], atol=1e-12)
+    np.testing.assert_allclose(m[:3, 2], [1, 0, 0], atol=1e-12)
+
+
+def test_odometry_yields_to_tf_in_either_order_and_fixed_frame():
+    b = TfBuffer()
+    b.add(OdometrySample(0, "odom", "base_link", (5.0, 0, 0), yaw_q(0)))
+    b.add(TfSample(0, "odom", "base_link", (1.0, 0, 0), yaw_q(0)))
+    b.add(OdometrySample(0, "odom", "base_link", (5.0, 0, 0), yaw_q(0)))
+    assert b.lookup("odom", "base_link", 0)[0, 3] == 1.0
+    assert b.fixed_frame() == "odom"
+    b.add(TfSample(0, "map", "odom", (0, 0, 0), yaw_q(0)))
+    assert b.fixed_frame() == "map"
+    assert b.fixed_frame("/odom") == "odom"
+    with pytest.raises(TransformError, match="--fixed-frame world"):
+        b.fixed_frame("world")
+    with pytest.raises(TransformError, match="neither map nor odom"):
+        choose_fixed_frame({"base_link", "laser"})
+    assert b.tree_text().splitlines() == ["map", "  odom  [tf, 1 samples]", "    base_link  [tf, 1 samples]"]
+
+
+def test_memory_is_bounded_by_the_window():
+    b = TfBuffer(window_ns=1 * S)
+    for i in range(1000):
+        b.add(TfSample(i * S // 100, "odom", "base_link", (i / 100, 0, 0), yaw_q(0)))
+    n = len(b.edges["base_link"].times)
+    assert n < 400  # 10 s of 100 Hz samples, window 1 s: at most ~3 windows kept
+    assert b.lookup("odom", "base_link", 9 * S + S // 2)[0, 3] == pytest.approx(9.5)
