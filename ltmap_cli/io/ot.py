@@ -43,7 +43,7 @@ MAX_VOXELS = 50_000_000
 
 NODE_DTYPE = np.dtype([("value", "<f4"), ("children", "u1")])  # packed: 5 bytes, as OctoMap writes
 
-_OK, _TRUNCATED, _CORRUPT, _DUPLICATE = 0, 1, 2, 3
+_OK, _TRUNCATED, _CORRUPT = 0, 1, 2
 
 
 # --------------------------------------------------------------------------------------------
@@ -253,7 +253,7 @@ def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float) -> bytes:
 
 
 def write_ot(path: str | os.PathLike, keys: np.ndarray, logodds: np.ndarray, resolution: float) -> None:
-    """Write voxels ``keys`` (N, 3) int voxel indices (negative allowed, |i| <= 32768) with
+    """Write voxels ``keys`` (N, 3) int voxel indices (each in [-32768, 32767]) with
     ``logodds`` (N,) float32 as an OctoMap ``OcTree`` ``.ot`` file, atomically. Raises
     ValueError for bad arrays (wrong shape, duplicates, out of OctoMap's key range)."""
     data = ot_bytes(keys, logodds, resolution)
