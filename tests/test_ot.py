@@ -186,6 +186,6 @@ def test_read_errors(tmp_path):
     huge.write_bytes(b"# Octomap OcTree file\nid OcTree\nsize 1\nres 0.1\ndata\n" + struct.pack("<fB", 1.0, 0))
     with pytest.raises(MapFileError, match=r"huge\.ot: OctoMap tree expands to 281474976710656 voxels"):
         read_ot(huge)
+    write_ot(cut, np.array([[0, 0, 0], [5, 5, 5]]), np.array([1.0, 2.0], np.float32), 0.1)
     with pytest.raises(MapFileError, match="expands to 2 voxels, more than the 1"):
-        write_ot(cut, np.array([[0, 0, 0], [5, 5, 5]]), np.array([1.0, 2.0], np.float32), 0.1)
         read_ot(cut, max_voxels=1)
