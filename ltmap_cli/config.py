@@ -27,6 +27,9 @@ class ReplayConfig:
     depth_topics: list[str] = field(default_factory=list)
     tf: list[str] = field(default_factory=list)  # extra mounts: parent:child=x,y,z,roll,pitch,yaw
     allow_truncated: bool = False
+    tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
+    tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
+    static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
 
 
 @dataclass

@@ -162,3 +162,15 @@ def test_storage_grows_while_integrating_many_blocks():
     assert m.O.n_blocks > 1024  # beyond the initial pool: grown mid-frame and resumed
     occ = {tuple(k) for k in m.occupied_keys("O").tolist()}
     assert occ == expected
+
+
+def test_dedupe_casts_one_ray_per_end_voxel_with_the_same_result_for_hits():
+    rng = np.random.default_rng(5)
+    pts = np.repeat(np.array([centre(30, 4, 6), centre(-20, 9, 2), centre(3, -25, 8)]), 40, axis=0)
+    pts += rng.uniform(-0.02, 0.02, pts.shape)  # 40 points per end voxel, all inside it
+    a, b = new_map(), new_map()
+    ra = a.integrate(centre(0, 0, 5), pts)
+    rb = b.integrate(centre(0, 0, 5), pts, dedupe=True)
+    assert ra.rays == 120 and ra.hits == rb.hits == 3
+    assert {tuple(k) for k in a.occupied_keys("O").tolist()} == {tuple(k) for k in b.occupied_keys("O").tolist()}
+    assert rb.misses <= ra.misses and rb.misses > 0

@@ -24,6 +24,7 @@ class SensorConfig:
     depth_max_range: float = 8.0  # m; lasers use their message's range_max
     ground_tolerance: float = 0.05  # m; returns with |z| <= this clear but do not mark
     clear_no_return: bool = True  # a LaserScan +inf / > range_max beam clears up to max_range
+    dedupe_dense: bool = True  # depth images / clouds: one ray per end voxel (OctoMap's discretize)
 
     @property
     def hit_logodds(self) -> float:

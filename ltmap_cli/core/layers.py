@@ -27,6 +27,7 @@ from .raycast import (
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
     classify_rays,
+    dedupe_endpoints,
     integrate_kernel,
 )
 
@@ -130,6 +131,15 @@ class StaticGrid:
                 view = out[dj : dj + H, di : di + W]
                 np.maximum(view, base, out=view)
         return out, self.i0 - m, self.j0 - m
+
+    def voxel_keys(self) -> np.ndarray:
+        """Keys (M, 3) of every static voxel (the columns k = 0 .. top_k)."""
+        rows, cols = np.nonzero(self.top_k >= 0)
+        counts = self.top_k[rows, cols].astype(np.int64) + 1
+        kk = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+        return np.stack([np.repeat(cols, counts) + self.i0, np.repeat(rows, counts) + self.j0, kk], axis=1).astype(
+            np.int64
+        )
 
     def is_occupied(self, keys: np.ndarray) -> np.ndarray:
         keys = np.asarray(keys, dtype=np.int64).reshape(-1, 3)
@@ -275,13 +285,15 @@ class LayeredMap:
         returns=None,
         max_range: float = 0.0,
         robot_pose: np.ndarray | None = None,
+        dedupe: bool = False,
     ) -> FrameResult:
         """Fuse one frame into O.
 
         origin: sensor origin (3,) in the fixed frame; points: (N, 3) end points in the fixed
         frame; returns: (N,) bool, False for beams without a return (clear only; default all
         True); max_range: rays are cut there (<= 0: no limit); robot_pose: 4x4 robot (base) to
-        fixed transform, for the footprint box (None: no footprint test).
+        fixed transform, for the footprint box (None: no footprint test); dedupe: cast one ray
+        per end voxel (dense depth images and clouds; OctoMap's ``discretize``).
         """
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
         pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
@@ -305,6 +317,8 @@ class LayeredMap:
             origin, pts, rets, float(max_range), float(sc.ground_tolerance), fp_inv,
             np.asarray(rc.footprint_min, dtype=np.float64), np.asarray(rc.footprint_max, dtype=np.float64), use_fp,
         )  # fmt: skip
+        if dedupe:
+            dedupe_endpoints(ends, kind, 1.0 / self.resolution)
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         phase, start = 0, 0
@@ -400,16 +414,9 @@ class LayeredMap:
         raise CoreError(f"unknown layer {layer!r}; use O, ST, LT, S or F")
 
     def _static_keys(self) -> np.ndarray:
-        s = self.static
-        if s is None:
+        if self.static is None:
             return np.zeros((0, 3), dtype=np.int64)
-        rows, cols = np.nonzero(s.top_k >= 0)
-        tops = s.top_k[rows, cols]
-        counts = tops + 1
-        rr = np.repeat(rows, counts)
-        cc = np.repeat(cols, counts)
-        kk = np.concatenate([np.arange(n) for n in counts]) if len(counts) else np.zeros(0, np.int64)
-        return np.stack([cc + s.i0, rr + s.j0, kk], axis=1).astype(np.int64)
+        return self.static.voxel_keys()
 
     def values(self, layer: str, keys: np.ndarray) -> np.ndarray:
         """Values of a layer at voxel keys: O log-odds (0 unknown), ST / LT in [0, 1], S 0/1."""

@@ -105,15 +105,26 @@ def _project_lt(coords, n_blocks, lt, k_lo, k_hi, i0, j0, value):
                 value[r, c] = v
 
 
-def project(lmap, z_min: float | None = None, z_max: float | None = None) -> Projection:
-    """P of a ``LayeredMap`` over the band [z_min, z_max] (defaults from its config)."""
+def project(
+    lmap,
+    z_min: float | None = None,
+    z_max: float | None = None,
+    use_static: bool = True,
+    use_lt: bool = True,
+    use_o_free: bool = True,
+) -> Projection:
+    """P of a ``LayeredMap`` over the band [z_min, z_max] (defaults from its config).
+
+    The flags leave layers out: ``use_static=False`` projects LT alone (``long_term.pgm``);
+    ``use_lt=False, use_o_free=False`` projects S alone (``static.pgm``)."""
     pc = lmap.cfg.projection
     z_min = pc.z_min if z_min is None else z_min
     z_max = pc.z_max if z_max is None else z_max
     r = lmap.resolution
     k_lo, k_hi = band_k_range(z_min, z_max, r)
     boxes = []
-    for grid in (lmap.O, lmap.D):
+    grids = ([lmap.O] if use_o_free else []) + ([lmap.D] if use_lt else [])
+    for grid in grids:
         if grid.n_blocks:
             bc = grid.block_coords[: grid.n_blocks].astype(np.int64)
             zin = (bc[:, 2] * BLOCK + BLOCK - 1 >= k_lo) & (bc[:, 2] * BLOCK <= k_hi)
@@ -121,7 +132,7 @@ def project(lmap, z_min: float | None = None, z_max: float | None = None) -> Pro
                 bc = bc[zin]
                 boxes.append((bc[:, 0].min() * BLOCK, bc[:, 1].min() * BLOCK,
                               (bc[:, 0].max() + 1) * BLOCK, (bc[:, 1].max() + 1) * BLOCK))  # fmt: skip
-    s = lmap.static
+    s = lmap.static if use_static else None
     if s is not None:
         boxes.append((s.i0, s.j0, s.i0 + s.occ.shape[1], s.j0 + s.occ.shape[0]))
     if not boxes:
@@ -132,10 +143,12 @@ def project(lmap, z_min: float | None = None, z_max: float | None = None) -> Pro
     H, W = j1 - j0, i1 - i0
     value = np.zeros((H, W), dtype=np.float32)
     seen_free = np.zeros((H, W), dtype=np.bool_)
-    o = lmap.O
-    _project_o(o.block_coords, o.n_blocks, o.data["logodds"], o.data["stamp"], k_lo, k_hi, i0, j0, seen_free)
-    d = lmap.D
-    _project_lt(d.block_coords, d.n_blocks, d.data["lt"], k_lo, k_hi, i0, j0, value)
+    if use_o_free:
+        o = lmap.O
+        _project_o(o.block_coords, o.n_blocks, o.data["logodds"], o.data["stamp"], k_lo, k_hi, i0, j0, seen_free)
+    if use_lt:
+        d = lmap.D
+        _project_lt(d.block_coords, d.n_blocks, d.data["lt"], k_lo, k_hi, i0, j0, value)
     if s is not None:
         rs, cs = s.j0 - j0, s.i0 - i0
         h, w = s.occ.shape

@@ -222,3 +222,40 @@ def integrate_kernel(
     tb_meta[0] = n_tb
     counters[1] += n_miss
     return STATUS_DONE, 1, n
+
+
+@njit(cache=True)
+def dedupe_endpoints(ends, kind, inv_res):
+    """Keep one ray per (end voxel, kind): later duplicates become RAY_SKIP (in place).
+
+    OctoMap's ``discretize`` idea for dense depth images and clouds, where tens of pixels end in
+    the same voxel; the first ray to a voxel is kept with its exact end point. Returns the number
+    of rays dropped."""
+    n = ends.shape[0]
+    cap = 16
+    while cap < 2 * n:
+        cap *= 2
+    mask = cap - 1
+    table = np.full(cap, -1, dtype=np.int64)
+    dropped = 0
+    for r in range(n):
+        kd = kind[r]
+        if kd == RAY_SKIP:
+            continue
+        i = np.int64(np.floor(ends[r, 0] * inv_res)) + (1 << 20)
+        j = np.int64(np.floor(ends[r, 1] * inv_res)) + (1 << 20)
+        k = np.int64(np.floor(ends[r, 2] * inv_res)) + (1 << 20)
+        packed = ((i << 42) | (j << 21) | k) * 2 + (1 if kd == RAY_HIT else 0)
+        h = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
+        s = np.int64((h ^ (h >> np.uint64(31))) & np.uint64(mask))
+        while True:
+            t = table[s]
+            if t == packed:
+                kind[r] = RAY_SKIP
+                dropped += 1
+                break
+            if t == -1:
+                table[s] = packed
+                break
+            s = (s + 1) & mask
+    return dropped

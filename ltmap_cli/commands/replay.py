@@ -1,0 +1,141 @@
+"""`ltmap replay LOG [LOG ...]`: parse, build the run, show progress, print a summary."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from ..errors import ConfigError
+
+
+class ProgressBar:
+    """A one-line bar on stderr: log time done / total, frames/s, speed against real time.
+
+    On a terminal it redraws in place; otherwise (CI logs) it prints a line every 10 %."""
+
+    def __init__(self, stream=None, width: int = 28):
+        self.stream = stream or sys.stderr
+        self.width = width
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._last_decile = -1
+
+    def __call__(self, p) -> None:
+        frac = min(p.log_done_s / p.log_total_s, 1.0) if p.log_total_s > 0 else 1.0
+        fill = int(frac * self.width)
+        fps = p.frames / p.wall_s if p.wall_s > 0 else 0.0
+        line = (
+            f"[{'#' * fill}{'.' * (self.width - fill)}] {p.log_done_s:7.1f}/{p.log_total_s:.1f} s log"
+            f" | {fps:6.1f} frames/s | {p.speed:5.1f}x real time"
+        )
+        if self.tty:
+            self.stream.write("\r" + line)
+            self.stream.flush()
+        elif int(frac * 10) > self._last_decile:
+            self._last_decile = int(frac * 10)
+            self.stream.write(line + "\n")
+
+    def close(self) -> None:
+        if self.tty:
+            self.stream.write("\n")
+            self.stream.flush()
+
+
+def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
+    import yaml
+
+    out = []
+    for v in values:
+        if "=" not in v:
+            raise ConfigError(f"--set {v}: expected KEY=VALUE, e.g. --set map.layers.tick=0.1")
+        key, raw = v.split("=", 1)
+        try:
+            out.append((key.strip(), yaml.safe_load(raw)))
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"--set {v}: the value is not valid YAML") from exc
+    return out
+
+
+@click.command("replay")
+@click.argument("logs", nargs=-1, type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("ltmap_out"), show_default=True,
+              help="Output folder.")
+@click.option("--static", "static", type=click.Path(path_type=Path),
+              help="Static map S: a build-static output (folder or static.yaml) or any map_server YAML.")
+@click.option("--resume", type=click.Path(path_type=Path),
+              help="Start LT from an earlier output folder or snapshot (state .npz or .ot).")
+@click.option("--config", "config_file", type=click.Path(path_type=Path), help="Parameters from a YAML file "
+              "(the names of config.yaml / --dump-config).")
+@click.option("--dump-config", is_flag=True, help="Print the effective parameters as YAML and exit.")
+@click.option("--fixed-frame", help="Fixed frame (default: map when tf has it, else odom).")
+@click.option("--tf", "tf_mounts", multiple=True, metavar="PARENT:CHILD=x,y,z,roll,pitch,yaw",
+              help="Add a transform the log lacks (metres, radians). Repeatable.")
+@click.option("--scan-topic", multiple=True, help="LaserScan topic to use (repeatable; default: all).")
+@click.option("--cloud-topic", multiple=True, help="PointCloud2 topic to use (repeatable; default: all).")
+@click.option("--depth-topic", multiple=True, help="Depth image topic to use (repeatable; default: all).")
+@click.option("--resolution", type=float, help="Voxel size in metres (default 0.05).")
+@click.option("--tick", type=float, help="Update tick of ST/LT in seconds of log time (default 0.2).")
+@click.option("--snapshot-every", type=float, help="Seconds of log time between snapshots (default 60).")
+@click.option("--mode", type=click.Choice(["trinary", "scale"]), help="map.pgm mode (default trinary).")
+@click.option("--allow-truncated", is_flag=True, help="Replay what a cut-off or corrupt log holds, exit 0.")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
+@click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
+def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
+           depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, overrides, quiet):
+    """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
+    layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
+    (OctoMap .ot, .ply, exact state), report.json and config.yaml into the output folder."""
+    from ..config import dump_config as dump
+    from ..config import load_config, set_dotted
+
+    cfg = load_config(config_file)
+    flags = {
+        "map.resolution": resolution,
+        "map.layers.tick": tick,
+        "replay.snapshot_every": snapshot_every,
+        "replay.mode": mode,
+        "replay.fixed_frame": fixed_frame,
+    }
+    for key, value in flags.items():
+        if value is not None:
+            set_dotted(cfg, key, value)
+    if tf_mounts:
+        cfg.replay.tf = list(cfg.replay.tf) + list(tf_mounts)
+    for key, value in (("scan_topics", scan_topic), ("cloud_topics", cloud_topic), ("depth_topics", depth_topic)):
+        if value:
+            setattr(cfg.replay, key, list(value))
+    if allow_truncated:
+        cfg.replay.allow_truncated = True
+    for key, value in _parse_set(overrides):
+        set_dotted(cfg, key, value)
+    cfg.validate()
+    if dump_config:
+        click.echo(dump(cfg), nl=False)
+        return
+    if not logs:
+        raise click.UsageError("give at least one LOG (a .bag, a ROS 2 bag folder or an .mcap)")
+
+    from ..replay import Replay, ReplayRequest
+
+    bar = None if quiet else ProgressBar()
+    run = Replay(cfg, ReplayRequest(list(logs), output, static=static, resume=resume), progress=bar)
+    try:
+        report = run.run()
+    finally:
+        if bar is not None:
+            bar.close()
+    used = sum(report["frames_used"].values())
+    skipped = sum(report["frames_skipped"].values())
+    click.echo(
+        f"replayed {report['log_duration_s']:.1f} s of log in {report['wall_time_s']:.1f} s "
+        f"({report['speed_vs_real_time']}x real time): {used} frames used, {skipped} skipped, "
+        f"{report['voxels']['long_term_occupied']} long-term voxels"
+    )
+    for reason, n in sorted(report["frames_skipped"].items(), key=lambda kv: -kv[1]):
+        click.echo(f"  skipped {n} x: {reason}")
+    if report.get("stopped_at"):
+        click.echo(f"  log cut off: {report['stopped_at']}")
+    click.echo(f"wrote {output}/ (map.yaml, long_term.yaml, snapshots/, report.json, config.yaml)")
+

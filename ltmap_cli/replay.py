@@ -1,0 +1,348 @@
+"""The replay pipeline: log -> frames -> mapper -> outputs.
+
+Messages are read in log-time order (several logs merged). tf and odometry go into the tf
+buffer at once; sensor frames wait ``replay.tf_wait`` seconds of log time (so the tf samples
+after their header stamp have arrived), then are placed with the transform at their header stamp
+and integrated into O in stamp order. A tick of ``map.layers.tick`` seconds (by header stamp)
+applies the ST/LT rules; snapshots are written every ``replay.snapshot_every`` seconds of log
+time and at the end. A frame whose pose cannot be had is skipped and counted by reason; when
+every frame is skipped the run fails naming the missing transform.
+
+Nothing here prints: progress goes to a callback, results to the output folder and the returned
+report.
+"""
+
+from __future__ import annotations
+
+import heapq
+import json
+import resource
+import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import Config, dump_config
+from .core.layers import LayeredMap, StaticGrid
+from .core.projection import Projection, project
+from .core.sensors import depth_to_points, scan_to_points, transform_points
+from .errors import InputError, TransformError
+from .io.atomic import write_text_atomic
+from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
+
+NS = 1_000_000_000
+MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
+
+
+@dataclass
+class Progress:
+    log_done_s: float
+    log_total_s: float
+    frames: int
+    wall_s: float
+
+    @property
+    def speed(self) -> float:
+        return self.log_done_s / self.wall_s if self.wall_s > 0 else 0.0
+
+
+@dataclass
+class ReplayRequest:
+    logs: list[Path]
+    out_dir: Path
+    static: Path | None = None
+    resume: Path | None = None
+
+
+@dataclass
+class _Counts:
+    used: Counter = field(default_factory=Counter)  # topic -> frames integrated
+    skipped: Counter = field(default_factory=Counter)  # reason -> frames skipped
+    skipped_by_topic: Counter = field(default_factory=Counter)
+    no_footprint: int = 0
+    rays: int = 0
+
+
+def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
+    """S from a build-static output or a map_server YAML, resampled onto the map lattice."""
+    from .io.static_layer import load_static_input
+
+    layer = load_static_input(path, wall_height=cfg.replay.static_wall_height)
+    g = layer.grid
+    static = StaticGrid.from_height_map(g.data, layer.height, g.resolution, g.origin, cfg.map.resolution)
+    info = {
+        "path": str(path),
+        "source_resolution": g.resolution,
+        "cells": [int(g.data.shape[1]), int(g.data.shape[0])],
+        "wall_height": layer.wall_height,
+        "static_voxels": int((static.top_k + 1).clip(min=0).sum()),
+    }
+    return static, info, layer
+
+
+def _seed_keys(layer, cfg: Config) -> np.ndarray:
+    """LT seeds of a build-static layer (furniture drawn as long-term) as voxel keys."""
+    h = layer.lt_seed_height
+    if h is None or not np.any(h > 0):
+        return np.zeros((0, 3), dtype=np.int64)
+    occ = np.where(h > 0, 100, -1).astype(np.int8)
+    g = layer.grid
+    seeds = StaticGrid.from_height_map(occ, h, g.resolution, g.origin, cfg.map.resolution)
+    return seeds.voxel_keys()
+
+
+class Replay:
+    """One replay run. ``run()`` returns the report (also written to report.json)."""
+
+    def __init__(self, cfg: Config, request: ReplayRequest, progress: Callable[[Progress], None] | None = None):
+        cfg.validate()
+        self.cfg = cfg
+        self.req = request
+        self.progress = progress
+        self.counts = _Counts()
+        self.lmap: LayeredMap | None = None
+        self.fixed_frame: str | None = None
+        self.base_frame: str | None = None
+        self.snapshots: list[dict] = []
+
+    # ------------------------------------------------------------------------------------
+    def run(self) -> dict:
+        from .io.logs import open_logs
+        from .transforms import TfBuffer
+
+        cfg, req = self.cfg, self.req
+        t_wall0 = time.perf_counter()
+        static, static_info, static_layer = (None, None, None)
+        if req.static is not None:
+            static, static_info, static_layer = load_static(req.static, cfg)
+        self.lmap = lmap = LayeredMap(cfg.map, static=static)
+        resume_info = None
+        if static_layer is not None:
+            seeds = _seed_keys(static_layer, cfg)
+            if len(seeds):
+                lmap.seed_long_term(seeds, 1.0)
+                static_info["long_term_seed_voxels"] = len(seeds)
+        if req.resume is not None:
+            from .snapshots import load_resume
+
+            resume_info = load_resume(lmap, req.resume)
+
+        tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
+        for spec in cfg.replay.tf:
+            tf.add_mount(spec)
+        self.tf = tf
+        out = req.out_dir
+        out.mkdir(parents=True, exist_ok=True)
+        stopped_at = None
+        with open_logs(req.logs, allow_truncated=cfg.replay.allow_truncated) as logs:
+            sel = logs.select(
+                scan_topics=cfg.replay.scan_topics,
+                cloud_topics=cfg.replay.cloud_topics,
+                depth_topics=cfg.replay.depth_topics,
+            )
+            self.log_start = logs.start_ns
+            self.log_total_s = max((logs.end_ns - logs.start_ns) / NS, 1e-9)
+            tick_ns = int(round(cfg.map.layers.tick * NS))
+            wait_ns = int(cfg.replay.tf_wait * NS)
+            snap_ns = int(round(cfg.replay.snapshot_every * NS))
+            self._pending: list = []
+            self._seq = 0
+            self._tick_end: int | None = None
+            self._tick_ns = tick_ns
+            self._next_snapshot = snap_ns
+            self._snap_ns = snap_ns
+            self._t0: int | None = None
+            self._last_progress = 0.0
+            self._t_wall0 = t_wall0
+            try:
+                for topic, log_ns, item in logs.messages(sel):
+                    if isinstance(item, (TfSample, OdometrySample)):
+                        tf.add(item)
+                    else:
+                        heapq.heappush(self._pending, (item.stamp_ns, self._seq, topic, item))
+                        self._seq += 1
+                    while self._pending and (
+                        self._pending[0][0] <= log_ns - wait_ns or len(self._pending) > MAX_PENDING
+                    ):
+                        self._process(*heapq.heappop(self._pending)[2:])
+                    self._report_progress(log_ns)
+            finally:
+                stats = logs.stats
+            while self._pending:
+                self._process(*heapq.heappop(self._pending)[2:])
+            stopped_at = stats.stopped_at
+            messages = dict(stats.messages_per_topic)
+            not_decoded = dict(getattr(logs, "skipped", {}) or {})
+            topics_not_used = dict(sel.skipped)
+            selected = {"scans": sel.scans, "clouds": sel.clouds, "depth": sel.depth}
+
+        total_used = sum(self.counts.used.values())
+        if total_used == 0:
+            if self.counts.skipped:
+                reason, n = self.counts.skipped.most_common(1)[0]
+                raise TransformError(f"every sensor frame was skipped ({n} x): {reason}")
+            raise InputError(
+                f"no sensor frames in {', '.join(str(p) for p in req.logs)} on topics "
+                f"{', '.join(sel.sensor_topics) or '(none)'}; check the topics with `ltmap info`"
+            )
+        lmap.end_tick()  # the last, partial tick
+        self._snapshot(None)
+        wall = time.perf_counter() - t_wall0
+        outputs = self._write_maps(out)
+        report = {
+            "logs": [str(p) for p in req.logs],
+            "fixed_frame": self.fixed_frame,
+            "base_frame": self.base_frame,
+            "topics_used": selected,
+            "topics_not_used": topics_not_used,
+            "messages_per_topic": messages,
+            "messages_not_decoded": not_decoded,
+            "frames_used": dict(self.counts.used),
+            "frames_skipped": dict(self.counts.skipped),
+            "frames_skipped_by_topic": dict(self.counts.skipped_by_topic),
+            "frames_without_footprint": self.counts.no_footprint,
+            "rays": self.counts.rays,
+            "log_start_ns": int(self.log_start),
+            "log_duration_s": round(self.log_total_s, 3),
+            "wall_time_s": round(wall, 3),
+            "speed_vs_real_time": round(self.log_total_s / wall, 2) if wall > 0 else None,
+            "ticks": lmap.tick_index,
+            "stopped_at": stopped_at,
+            "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
+            "map_memory_mb": round(lmap.nbytes() / 2**20, 1),
+            "voxels": {
+                "observed_blocks": lmap.O.n_blocks,
+                "occupied_O": int((lmap.O.channel("logodds") > 0).sum()),
+                "long_term_occupied": int(
+                    (lmap.D.channel("lt") >= cfg.map.projection.occupied_thresh).sum()
+                ),
+            },
+            "static": static_info,
+            "resume": resume_info,
+            "snapshots": self.snapshots,
+            "outputs": outputs,
+        }
+        write_text_atomic(out / "config.yaml", dump_config(cfg))
+        write_text_atomic(out / "report.json", json.dumps(report, indent=2, default=_json_default) + "\n")
+        return report
+
+    # ------------------------------------------------------------------------------------
+    def _report_progress(self, log_ns: int, force: bool = False) -> None:
+        if self.progress is None:
+            return
+        now = time.perf_counter()
+        if not force and now - self._last_progress < 0.2:
+            return
+        self._last_progress = now
+        done = min(max((log_ns - self.log_start) / NS, 0.0), self.log_total_s)
+        self.progress(Progress(done, self.log_total_s, sum(self.counts.used.values()), now - self._t_wall0))
+
+    def _skip(self, topic: str, reason: str) -> None:
+        self.counts.skipped[reason] += 1
+        self.counts.skipped_by_topic[topic] += 1
+
+    def _choose_frames(self) -> None:
+        frames = self.tf.frames
+        self.fixed_frame = self.tf.fixed_frame(self.cfg.replay.fixed_frame)
+        base = self.cfg.map.robot.base_frame
+        if base not in frames:
+            base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
+        self.base_frame = base
+
+    def _advance_ticks(self, stamp: int) -> None:
+        lmap = self.lmap
+        if self._tick_end is None:
+            self._t0 = stamp
+            self._tick_end = stamp + self._tick_ns
+            return
+        while stamp >= self._tick_end:
+            lmap.end_tick()
+            if self._tick_end - self._t0 >= self._next_snapshot:
+                self._snapshot((self._tick_end - self._t0) / NS)
+                self._next_snapshot += self._snap_ns
+            self._tick_end += self._tick_ns
+
+    def _snapshot(self, t_s: float | None) -> None:
+        from .snapshots import write_snapshot
+
+        paths = write_snapshot(
+            self.lmap, self.req.out_dir / "snapshots", t_s, {"fixed_frame": self.fixed_frame}
+        )
+        self.snapshots.append({"log_time_s": t_s, **paths})
+
+    def _process(self, topic: str, item) -> None:
+        cfg = self.cfg
+        if self.fixed_frame is None:
+            self._choose_frames()
+        if not item.frame_id:
+            self._skip(topic, f"{topic}: message has an empty header.frame_id")
+            return
+        T, reason = self.tf.try_lookup(self.fixed_frame, item.frame_id, item.stamp_ns)
+        if T is None:
+            self._skip(topic, reason)
+            return
+        robot, _ = self.tf.try_lookup(self.fixed_frame, self.base_frame, item.stamp_ns)
+        if robot is None:
+            self.counts.no_footprint += 1
+        self._advance_ticks(item.stamp_ns)
+        sc = cfg.map.sensor
+        dedupe = False
+        if isinstance(item, ScanFrame):
+            pts, rets = scan_to_points(
+                item.ranges, item.angle_min, item.angle_increment, item.range_min, item.range_max,
+                clear_no_return=sc.clear_no_return,
+            )  # fmt: skip
+            max_range = float(item.range_max)
+        elif isinstance(item, DepthFrame):
+            k = item.intrinsics
+            pts = depth_to_points(item.depth_m, k.fx, k.fy, k.cx, k.cy)
+            rets = None
+            max_range = sc.depth_max_range
+            dedupe = sc.dedupe_dense
+        elif isinstance(item, CloudFrame):
+            pts = np.asarray(item.points, dtype=np.float64)
+            rets = None
+            max_range = sc.depth_max_range
+            dedupe = sc.dedupe_dense
+        else:  # pragma: no cover - the reader yields only these
+            return
+        world = transform_points(T, pts)
+        r = self.lmap.integrate(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
+        self.counts.used[topic] += 1
+        self.counts.rays += r.rays
+
+    # ------------------------------------------------------------------------------------
+    def _write_maps(self, out: Path) -> dict[str, str]:
+        from .io.mapfile import GridMap, write_map
+
+        cfg, lmap = self.cfg, self.lmap
+        pc = cfg.map.projection
+        written = {}
+
+        def save(name: str, p: Projection, mode: str) -> None:
+            data = p.scale_data() if mode == "scale" else p.data
+            write_map(
+                out / f"{name}.yaml", GridMap(data, p.resolution, p.origin), mode=mode,
+                occupied_thresh=pc.occupied_thresh, free_thresh=pc.free_thresh,
+            )  # fmt: skip
+            written[name] = str(out / f"{name}.yaml")
+
+        save("map", project(lmap), cfg.replay.mode)
+        save("long_term", project(lmap, use_static=False), cfg.replay.mode)
+        if lmap.static is not None:
+            save("static", project(lmap, use_lt=False, use_o_free=False), "trinary")
+        return written
+
+
+def _json_default(o):
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.floating,)):
+        return float(o)
+    if isinstance(o, Path):
+        return str(o)
+    return str(o)
+

@@ -1,0 +1,124 @@
+"""Long-term snapshots: OctoMap ``.ot``, ``.ply`` for viewers, and the exact state for --resume.
+
+``.ot``: every voxel with LT > 0, as an OctoMap OcTree whose log-odds are shifted so that
+OctoMap's own occupancy test (p >= 0.5) agrees with ltmap's (LT >= occupied_thresh, 0.65):
+``logodds = logit(clip(LT, 0.001, 0.999)) - logit(occupied_thresh)``. ``LT`` is recovered as
+``sigmoid(logodds + logit(occupied_thresh))`` (to within the clip) when an ``.ot`` is resumed.
+
+``state_*.npz``: the map core's exact arrays (O, ST, LT and clocks). ``--resume`` carries LT only
+(day 2 starts with a fresh sensor map and short-term layer), from a state file, an ``.ot``, or an
+output folder (its ``snapshots/state_final.npz``).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from .core.grid import coord_to_pos
+from .core.layers import LayeredMap
+from .errors import MapFileError
+from .io.state import read_state, write_state
+
+LT_CLIP = 1e-3
+
+
+def _logit(p):
+    return np.log(p / (1.0 - p))
+
+
+def lt_to_ot_logodds(lt: np.ndarray, occupied_thresh: float) -> np.ndarray:
+    p = np.clip(np.asarray(lt, dtype=np.float64), LT_CLIP, 1.0 - LT_CLIP)
+    return (_logit(p) - _logit(occupied_thresh)).astype(np.float32)
+
+
+def ot_logodds_to_lt(logodds: np.ndarray, occupied_thresh: float) -> np.ndarray:
+    x = np.asarray(logodds, dtype=np.float64) + _logit(occupied_thresh)
+    lt = 1.0 / (1.0 + np.exp(-x))
+    lt = np.where(lt >= 1.0 - 1.5 * LT_CLIP, 1.0, lt)
+    return lt.astype(np.float32)
+
+
+def snapshot_name(t_s: float | None) -> str:
+    return "final" if t_s is None else f"t{t_s:08.1f}s"
+
+
+def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
+    """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
+    from .io.ot import write_ot
+
+    folder.mkdir(parents=True, exist_ok=True)
+    name = snapshot_name(t_s)
+    thr = lmap.cfg.projection.occupied_thresh
+    D = lmap.D
+    keys = D.voxels_where(D.channel("lt") > 0)
+    lt = D.get("lt", keys)
+    out = {}
+    ot_path = folder / f"long_term_{name}.ot"
+    write_ot(ot_path, keys, lt_to_ot_logodds(lt, thr), lmap.resolution)
+    out["ot"] = str(ot_path)
+    occ = lt >= thr
+    ply_path = folder / f"long_term_{name}.ply"
+    try:
+        from .io.ply import write_voxels_ply
+    except ImportError:  # pragma: no cover - the ply writer ships with the package
+        write_voxels_ply = None
+    if write_voxels_ply is not None and occ.any():
+        write_voxels_ply(ply_path, coord_to_pos(keys[occ], lmap.resolution), lt[occ], lmap.resolution)
+        out["ply"] = str(ply_path)
+    state_path = folder / f"state_{name}.npz"
+    write_state(state_path, lmap.state_arrays(), {"log_time_s": t_s, **meta})
+    out["state"] = str(state_path)
+    return out
+
+
+def resolve_resume(path: str | Path) -> Path:
+    """The snapshot file a --resume argument names: a state .npz, an .ot, or an output folder."""
+    p = Path(path)
+    if p.is_dir():
+        for cand in (p / "snapshots" / "state_final.npz", p / "state_final.npz"):
+            if cand.is_file():
+                return cand
+        states = sorted(p.glob("snapshots/state_*.npz")) or sorted(p.glob("state_*.npz"))
+        if states:
+            return states[-1]
+        raise MapFileError(
+            f"--resume {p}: no snapshots/state_final.npz in this folder; give an ltmap replay output "
+            "folder or a snapshot file (.npz or .ot)"
+        )
+    if not p.is_file():
+        raise MapFileError(f"--resume {p}: no such file or folder; give a replay output folder or a snapshot")
+    if p.suffix not in (".npz", ".ot"):
+        raise MapFileError(f"--resume {p}: expected a state .npz, an OctoMap .ot or an output folder")
+    return p
+
+
+def load_resume(lmap: LayeredMap, path: str | Path) -> dict:
+    """Seed LT of ``lmap`` from a snapshot; returns what was loaded (for the report)."""
+    p = resolve_resume(path)
+    if p.suffix == ".ot":
+        from .io.ot import read_ot
+
+        keys, logodds, res = read_ot(p)
+        if not math.isclose(res, lmap.resolution, rel_tol=1e-6):
+            raise MapFileError(
+                f"--resume {p}: resolution {res} m differs from this run's {lmap.resolution} m; "
+                f"replay with --resolution {res}"
+            )
+        lt = ot_logodds_to_lt(logodds, lmap.cfg.projection.occupied_thresh)
+        keep = lt > LT_CLIP * 1.5
+        lmap.seed_long_term(keys[keep], lt[keep])
+        n = int(keep.sum())
+    else:
+        arrays, meta = read_state(p)
+        res = float(arrays["resolution"])
+        if not math.isclose(res, lmap.resolution, rel_tol=1e-6):
+            raise MapFileError(
+                f"--resume {p}: resolution {res} m differs from this run's {lmap.resolution} m; "
+                f"replay with --resolution {res}"
+            )
+        lmap.load_state_arrays(arrays, long_term_only=True)
+        n = int((lmap.D.channel("lt") > 0).sum())
+    return {"path": str(p), "long_term_voxels": n}
