@@ -288,6 +288,20 @@ class TfBuffer:
                 return err.reason
         return None
 
+    def available_until(self, target_frame: str, source_frame: str) -> int | None:
+        """The latest stamp at which ``lookup(target, source, stamp)`` can succeed (the oldest
+        newest-sample over the chain's timed edges; a huge number when every edge is static), or
+        None when the frames are not connected. tf usually arrives after the frames it places:
+        hold a frame until ``available_until`` reaches its stamp (or the log ends)."""
+        target, source = norm(target_frame), norm(source_frame)
+        if self.connection_problem(target, source):
+            return None
+        up_s, up_t = self._chain(source), self._chain(target)
+        common = next(f for f in up_s if f in set(up_t))
+        edges = up_s[: up_s.index(common)] + up_t[: up_t.index(common)]
+        timed = [self.edges[c].times[-1] for c in edges if not self.edges[c].timeless]
+        return min(timed) if timed else 2**63 - 1
+
     def try_lookup(self, target_frame: str, source_frame: str, stamp_ns: int) -> tuple[np.ndarray | None, str | None]:
         """``(T, None)`` or ``(None, reason)``: the reason names the missing edge, without a stamp."""
         try:

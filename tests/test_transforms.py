@@ -148,3 +148,15 @@ def test_memory_is_bounded_by_the_window():
     n = len(b.edges["base_link"].times)
     assert n < 400  # 10 s of 100 Hz samples, window 1 s: at most ~3 windows kept
     assert b.lookup("odom", "base_link", 9 * S + S // 2)[0, 3] == pytest.approx(9.5)
+
+
+def test_available_until_tells_when_a_frame_can_be_placed():
+    b = TfBuffer()
+    assert b.available_until("odom", "laser") is None
+    b.add(TfSample(0, "base_link", "laser", (0, 0, 0), yaw_q(0), static=True))
+    assert b.available_until("base_link", "laser") == 2**63 - 1
+    b.add(TfSample(1 * S, "odom", "base_link", (0, 0, 0), yaw_q(0)))
+    b.add(TfSample(3 * S, "odom", "base_link", (0, 0, 0), yaw_q(0)))
+    b.add(TfSample(2 * S, "map", "odom", (0, 0, 0), yaw_q(0)))
+    assert b.available_until("odom", "laser") == 3 * S
+    assert b.available_until("map", "laser") == 2 * S

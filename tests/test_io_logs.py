@@ -1,0 +1,301 @@
+"""Log readers: tiny real logs in every format read back exactly; layouts; merging; bad input."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from logfactory import (
+    FORMATS,
+    SUFFIX,
+    camera_info,
+    cloud,
+    image,
+    odometry,
+    scan,
+    string,
+    tf,
+    truncate,
+    write_log,
+    yaw_quat,
+)
+
+from ltmap_cli.errors import InputError, LogReadError
+from ltmap_cli.io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
+from ltmap_cli.io.logs import TruncatedLogError, open_logs, select_topics
+from ltmap_cli.io.sources import TopicInfo
+
+S = 1_000_000_000
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real_logs"
+
+
+def _log(tmp_path: Path, fmt: str, msgs, name: str = "log", **kw) -> Path:
+    return write_log(tmp_path / (name + SUFFIX[fmt]), fmt, msgs, **kw)
+
+
+def _all(path, **kw):
+    with open_logs(path, **kw) as logs:
+        return list(logs.messages())
+
+
+def _mixed():
+    return [
+        tf(1 * S, [("odom", "base_link", (1.0, 2.0, 0.0), yaw_quat(0.5))]),
+        tf(1 * S + 1, [("base_link", "/laser", (0.1, 0.0, 0.2))], static=True),
+        scan("/scan", 2 * S, [1.0, float("nan"), float("inf"), 0.05], angle_min=-0.5, angle_increment=0.25,
+             stamp_ns=2 * S - 7),
+        odometry("/odom", 3 * S, "odom", "base_link", (4.0, 5.0, 0.0), yaw_quat(1.0)),
+        string("/chatter", 3 * S + 1, "hello"),
+    ]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_every_format_reads_back_exactly(tmp_path, fmt):
+    path = _log(tmp_path, fmt, _mixed())
+    with open_logs(path) as logs:
+        assert logs.formats == [fmt]
+        assert {n: (t.msgtype, t.count) for n, t in logs.topics.items()} == {
+            "/tf": ("tf2_msgs/msg/TFMessage", 1), "/tf_static": ("tf2_msgs/msg/TFMessage", 1),
+            "/scan": ("sensor_msgs/msg/LaserScan", 1), "/odom": ("nav_msgs/msg/Odometry", 1),
+            "/chatter": ("std_msgs/msg/String", 1)}
+        assert (logs.start_ns, logs.end_ns) == (1 * S, 3 * S + 1)
+        out = list(logs.messages())
+        assert logs.stats.messages_per_topic == {"/tf": 1, "/tf_static": 1, "/scan": 1, "/odom": 1}
+        assert logs.stats.stopped_at is None
+    assert [(t, lt) for t, lt, _ in out] == [("/tf", S), ("/tf_static", S + 1), ("/scan", 2 * S), ("/odom", 3 * S)]
+    assert out[0][2] == TfSample(S, "odom", "base_link", (1.0, 2.0, 0.0), yaw_quat(0.5), static=False)
+    assert out[1][2] == TfSample(S + 1, "base_link", "laser", (0.1, 0.0, 0.2), (0.0, 0.0, 0.0, 1.0), static=True)
+    sc = out[2][2]
+    assert isinstance(sc, ScanFrame)
+    assert (sc.stamp_ns, sc.frame_id, sc.topic) == (2 * S - 7, "laser", "/scan")
+    assert sc.ranges.dtype == np.float32
+    np.testing.assert_array_equal(sc.ranges, np.array([1.0, np.nan, np.inf, 0.05], np.float32))
+    np.testing.assert_allclose(sc.angles, [-0.5, -0.25, 0.0, 0.25])
+    assert (sc.range_min, sc.range_max) == (pytest.approx(0.1), 10.0)
+    assert out[3][2] == OdometrySample(3 * S, "odom", "base_link", (4.0, 5.0, 0.0), yaw_quat(1.0))
+
+
+CLOUD_PTS = [[1.0, 2.0, 3.0], [-4.5, 0.25, 6.0], [np.nan, 1.0, 1.0], [7.0, 8.0, np.inf], [0.0, 0.0, -1.0],
+             [1e3, -2e3, 3.5]]
+FINITE = np.array([CLOUD_PTS[i] for i in (0, 1, 4, 5)], np.float32)
+
+
+@pytest.mark.parametrize("layout", [
+    dict(),
+    dict(dtype="f8"),
+    dict(big_endian=True),
+    dict(dtype="f8", big_endian=True, pad=5),
+    dict(extra=[("intensity", "f4"), ("t", "u4")], pad=2),
+    dict(xyz_offset=4, extra=[("ring", "u2")], pad=3),  # x not at offset 0
+    dict(height=2, row_pad=6, pad=4),  # organized, padded rows
+    dict(height=3, dtype="f8", big_endian=True, row_pad=1, extra=[("intensity", "f4")]),
+])
+@pytest.mark.parametrize("fmt", ["ros1", "mcap-ros2"])
+def test_pointcloud2_layouts(tmp_path, fmt, layout):
+    path = _log(tmp_path, fmt, [cloud("/points", S, CLOUD_PTS, **layout)])
+    (topic, _, fr), = _all(path)
+    assert isinstance(fr, CloudFrame) and fr.frame_id == "lidar" and fr.points.dtype == np.float32
+    np.testing.assert_array_equal(fr.points, FINITE)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_depth_16uc1_and_32fc1_with_row_padding(tmp_path, fmt):
+    mm = np.array([[1000, 0, 2500], [65535, 1, 300]])
+    m = np.array([[1.5, np.nan, 0.0], [np.inf, 0.25, 3.0]])
+    msgs = [camera_info("/cam/depth/camera_info", S, width=3, height=2, fx=500.0, fy=501.0, cx=1.5, cy=0.75),
+            image("/cam/depth/image_raw", 2 * S, mm, encoding="16UC1", row_pad=3),
+            image("/cam/depth/image_raw", 3 * S, m, encoding="32FC1", row_pad=4, big_endian=True),
+            image("/cam/depth/image_raw", 4 * S, mm, encoding="16UC1", big_endian=True)]
+    path = _log(tmp_path, fmt, msgs)
+    out = _all(path)
+    assert [t for t, _, _ in out] == ["/cam/depth/image_raw"] * 3
+    a, b, c = (fr for _, _, fr in out)
+    assert isinstance(a, DepthFrame) and a.depth_m.dtype == np.float32 and a.frame_id == "camera_optical"
+    np.testing.assert_allclose(a.depth_m, [[1.0, np.nan, 2.5], [65.535, 0.001, 0.3]], rtol=1e-6)
+    np.testing.assert_array_equal(b.depth_m, np.array([[1.5, np.nan, np.nan], [np.nan, 0.25, 3.0]], np.float32))
+    np.testing.assert_allclose(c.depth_m, a.depth_m, rtol=1e-6)
+    i = a.intrinsics
+    assert (i.width, i.height, i.fx, i.fy, i.cx, i.cy) == (3, 2, 500.0, 501.0, 1.5, 0.75)
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap-ros1", "ros2-sqlite3"])
+def test_depth_before_camera_info_is_counted_and_colour_encoding_is_an_error(tmp_path, fmt):
+    msgs = [image("/cam/depth/image_raw", S, [[1000]]),
+            camera_info("/cam/depth/camera_info", 2 * S, width=1, height=1, fx=1, fy=1, cx=0, cy=0),
+            image("/cam/depth/image_raw", 3 * S, [[1000]]),
+            image("/cam/depth/image_raw", 4 * S, [[1, 2, 3]], encoding="rgb8")]
+    path = _log(tmp_path, fmt, msgs)
+    with open_logs(path) as logs:
+        it = logs.messages()
+        assert next(it)[1] == 3 * S
+        with pytest.raises(LogReadError, match=r"'rgb8'.*16UC1.*32FC1.*--depth-topic") as e:
+            next(it)
+        assert "/cam/depth/image_raw, message index 2" in str(e.value) and path.name in str(e.value)
+        assert logs.skipped == {"depth image on /cam/depth/image_raw before any CameraInfo on "
+                                "/cam/depth/camera_info": 1}
+
+
+def test_several_logs_merge_in_time_order(tmp_path):
+    a = _log(tmp_path, "ros1", [scan("/scan", t * S, [1.0]) for t in (1, 4, 6)], name="a")
+    b = _log(tmp_path, "mcap-ros2", [scan("/scan", t * S, [2.0]) for t in (2, 3, 7)], name="b")
+    c = _log(tmp_path, "ros2-sqlite3", [tf(t * S, [("odom", "base_link")]) for t in (0, 5)], name="c")
+    with open_logs([a, b, c]) as logs:
+        assert logs.topics["/scan"].count == 6 and (logs.start_ns, logs.end_ns) == (0, 7 * S)
+        got = [(t, lt, getattr(fr, "ranges", [None])[0]) for t, lt, fr in logs.messages()]
+    assert got == [("/tf", 0, None), ("/scan", S, 1.0), ("/scan", 2 * S, 2.0), ("/scan", 3 * S, 2.0),
+                   ("/scan", 4 * S, 1.0), ("/tf", 5 * S, None), ("/scan", 6 * S, 1.0), ("/scan", 7 * S, 2.0)]
+
+
+def test_ros2_bag_paths_inside_the_folder_and_custom_types(tmp_path):
+    bag = _log(tmp_path, "ros2-sqlite3", [scan("/scan", S, [1.0])])
+    for p in (bag, bag / "metadata.yaml", next(bag.glob("*.db3"))):
+        assert [t for t, _, _ in _all(p)] == ["/scan"]
+    custom = {"my_msgs/msg/Gadget": "std_msgs/Header header\nint32 level\nfloat64[] values"}
+    msgs = [scan("/scan", S, [1.0]),
+            type(scan("/x", 0, []))("/gadget", S + 1, "my_msgs/msg/Gadget", {"level": 3})]
+    path = _log(tmp_path, "ros1", msgs, name="custom", extra_types=custom)
+    with open_logs(path) as logs:
+        assert logs.topics["/gadget"].msgtype == "my_msgs/msg/Gadget"
+        raw = list(logs.raw(["/gadget"]))
+        assert raw[0][2]().level == 3  # the definition lives only in the bag
+
+
+def test_select_topics_by_type_names_and_reasons():
+    ti = {n: TopicInfo(n, t, 5) for n, t in [
+        ("/scan", "sensor_msgs/msg/LaserScan"), ("/scan_rear", "sensor_msgs/msg/LaserScan"),
+        ("/points", "sensor_msgs/msg/PointCloud2"), ("/cam/color/image_raw", "sensor_msgs/msg/Image"),
+        ("/cam/depth/image_raw", "sensor_msgs/msg/Image"), ("/cam/depth/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/ir/depth/image", "sensor_msgs/msg/Image"), ("/ir/camera_info", "sensor_msgs/msg/CameraInfo"),
+        ("/tf", "tf2_msgs/msg/TFMessage"), ("/tf_static", "tf2_msgs/msg/TFMessage"),
+        ("/odom", "nav_msgs/msg/Odometry")]}
+    sel = select_topics(ti)
+    assert sel.scans == ["/scan", "/scan_rear"] and sel.clouds == ["/points"]
+    assert sel.depths == {"/cam/depth/image_raw": "/cam/depth/camera_info"}
+    assert sel.tf == ["/tf", "/tf_static"] and sel.static_tf == ["/tf_static"] and sel.odometry == ["/odom"]
+    assert "does not say depth" in sel.skipped["/cam/color/image_raw"]
+    assert "without CameraInfo" in sel.skipped["/ir/depth/image"]
+    sel = select_topics(ti, scan_topics=["scan"])  # exclusive; leading slash optional
+    assert sel.scans == ["/scan"] and sel.clouds == [] and sel.depths == {}
+    assert "not chosen" in sel.skipped["/scan_rear"] and "not chosen" in sel.skipped["/points"]
+    assert sel.topics == {"/scan", "/tf", "/tf_static", "/odom"}
+    with pytest.raises(InputError, match=r"--scan-topic /laser: .* no topic /laser; its LaserScan topics: "
+                                         r"/scan, /scan_rear; all topics: "):
+        select_topics(ti, scan_topics=["/laser"])
+    with pytest.raises(InputError, match=r"--cloud-topic /scan: topic /scan .* is sensor_msgs/msg/LaserScan"):
+        select_topics(ti, cloud_topics=["/scan"])
+    with pytest.raises(InputError, match=r"--depth-topic /ir/depth/image: depth Image without CameraInfo"):
+        select_topics(ti, depth_topics=["/ir/depth/image"])
+    with pytest.raises(InputError, match=r"no usable LaserScan.*/tf \(tf2_msgs/msg/TFMessage\)"):
+        select_topics({"/tf": ti["/tf"]}, source="x.bag")
+
+
+def test_laserscan_ranges_not_matching_angles(tmp_path):
+    bad = scan("/scan", 2 * S, [1.0] * 10, angle_min=0.0, angle_increment=0.1, angle_max=3.0)
+    path = _log(tmp_path, "mcap-ros2", [scan("/scan", S, [1.0] * 10), bad])
+    with pytest.raises(LogReadError, match=r"LaserScan on /scan, message index 1 in .*log.mcap: 10 ranges do not "
+                                           r"match .*expected about 31"):
+        _all(path)
+
+
+def test_missing_empty_and_not_a_log(tmp_path):
+    with pytest.raises(InputError, match=r"log not found: .*nope.bag; give a ROS 1 .bag"):
+        open_logs(tmp_path / "nope.bag")
+    (tmp_path / "empty.mcap").write_bytes(b"")
+    with pytest.raises(InputError, match=r"empty.mcap is empty \(0 bytes\)"):
+        open_logs(tmp_path / "empty.mcap")
+    (tmp_path / "notes.bag").write_text("hello, this is text\n")
+    with pytest.raises(InputError, match=r"notes.bag is not a robot log"):
+        open_logs(tmp_path / "notes.bag")
+    (tmp_path / "folder").mkdir()
+    with pytest.raises(InputError, match=r"folder without metadata.yaml"):
+        open_logs(tmp_path / "folder")
+    with pytest.raises(InputError, match=r"no log given"):
+        open_logs([])
+
+
+def _scans(n):
+    return [scan("/scan", (i + 1) * S // 10, [1.0 + i] * 20) for i in range(n)]
+
+
+@pytest.mark.parametrize("fmt", ["ros1", "mcap-ros2", "mcap-ros1"])
+def test_truncated_logs_yield_what_can_be_read_then_fail(tmp_path, fmt):
+    path = _log(tmp_path, fmt, _scans(60), chunk_size=600)
+    f = path if path.is_file() else next(path.glob("*.mcap"))
+    truncate(f, 0.5)
+    read = []
+    with open_logs(path) as logs, pytest.raises(TruncatedLogError) as e:
+        for item in logs.messages():
+            read.append(item)
+    msg = str(e.value)
+    assert f.name in msg and "reading stopped after" in msg and "--allow-truncated" in msg
+    assert "\n" not in msg
+    assert 0 < len(read) < 60
+    # what was read is exact and in order
+    assert [fr.ranges[0] for _, _, fr in read] == [1.0 + i for i in range(len(read))]
+    with open_logs(path, allow_truncated=True) as logs:
+        again = list(logs.messages())
+        assert len(again) == len(read) and "reading stopped after" in logs.stats.stopped_at
+
+
+def test_truncated_ros2_mcap_bag_with_nothing_readable(tmp_path):
+    bag = _log(tmp_path, "ros2-mcap", _scans(60))  # rosbags writes a single chunk
+    truncate(next(bag.glob("*.mcap")), 0.5)
+    with open_logs(bag, allow_truncated=True) as logs, \
+            pytest.raises(TruncatedLogError, match=r"no usable sensor topic before the damage: .*log.mcap: "
+                                                   r"reading stopped after 0 messages near byte \d+ \(the file "
+                                                   r"ends in the middle of a record\)"):
+        logs.select()
+
+
+def test_corrupt_sqlite_bag_and_corrupt_mcap_chunk(tmp_path):
+    bag = _log(tmp_path, "ros2-sqlite3", _scans(30))
+    truncate(next(bag.glob("*.db3")), 0.5)
+    with pytest.raises(LogReadError, match=r"cannot read ROS 2 bag .*corrupt or cut off"):
+        open_logs(bag)
+    path = _log(tmp_path, "mcap-ros2", _scans(60), chunk_size=600)
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 40] = b"\xff" * 40  # garbage inside a chunk in the middle
+    path.write_bytes(bytes(data))
+    with open_logs(path, allow_truncated=True) as logs:
+        got = list(logs.messages())
+        assert 0 < len(got) < 60 and logs.stats.stopped_at
+
+
+@pytest.mark.skipif(not (REAL / "ist_pioneer3dx_test1.bag").exists(), reason=f"real logs not in {REAL}")
+def test_real_pioneer_ros1_bag_scan_decodes():
+    with open_logs(REAL / "ist_pioneer3dx_test1.bag") as logs:
+        assert logs.topics["/scan"].count == 311 and logs.topics["/pose"].count == 313
+        assert logs.topics["/tf"].count == 317
+        assert logs.topics["/sonar"].msgtype == "p2os_msgs/msg/SonarArray"
+        sel = logs.select()
+        assert sel.scans == ["/scan"] and sel.odometry == ["/pose"]
+        scans = [fr for t, _, fr in logs.messages(sel) if t == "/scan"]
+    assert len(scans) == 311
+    s = scans[0]
+    assert s.frame_id == "laser" and len(s.ranges) == 726
+    assert s.angle_min == pytest.approx(-2.356, abs=1e-3) and s.angles[-1] == pytest.approx(2.092, abs=1e-3)
+    assert np.isnan(s.ranges).any()  # invalid beams are NaN, kept as recorded
+
+
+@pytest.mark.skipif(not (REAL / "comprobo22_macfirst_floor_take_2").exists(), reason=f"real logs not in {REAL}")
+def test_real_comprobo_ros2_bag():
+    from ltmap_cli.transforms import TfBuffer
+
+    buf = TfBuffer()
+    with open_logs(REAL / "comprobo22_macfirst_floor_take_2") as logs:
+        assert logs.topics["/scan"].count == 357 and logs.topics["/odom"].count == 920
+        stamps = []
+        for _topic, _, fr in logs.messages():
+            if isinstance(fr, (TfSample, OdometrySample)):
+                buf.add(fr)
+            elif isinstance(fr, ScanFrame):
+                assert fr.frame_id == "rplidar_link" and len(fr.ranges) == 720
+                stamps.append(fr.stamp_ns)
+    assert len(stamps) == 357
+    # tf arrives after the scans it places: look up once tf has passed the stamps
+    placed = sum(buf.try_lookup("odom", "rplidar_link", t)[0] is not None for t in stamps)
+    assert placed > 340  # static tf ~4 h older than the log is timeless
+    assert math.isclose(buf.lookup("base_link", "rplidar_link", 0)[3, 3], 1.0)
