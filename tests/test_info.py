@@ -1,0 +1,122 @@
+"""`ltmap info` through the real CLI on tiny logs and on the real logs."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+from logfactory import SUFFIX, camera_info, image, odometry, scan, string, tf, truncate, write_log
+
+from ltmap_cli.cli import cli
+
+S = 1_000_000_000
+REAL = Path(__file__).resolve().parents[1].parent / "shared" / "real_logs"
+
+
+def _run(*args):
+    return CliRunner().invoke(cli, ["info", *map(str, args)])
+
+
+def _robot_log(tmp_path, fmt="mcap-ros2"):
+    msgs = []
+    for i in range(11):  # 10 Hz laser and tf for 1 s
+        t = S + i * S // 10
+        msgs.append(tf(t, [("odom", "base_link", (0.1 * i, 0.0, 0.0))]))
+        msgs.append(scan("/scan", t + 1, [1.0, 2.0, 3.0]))
+    msgs.append(string("/chatter", 2 * S, "hi"))
+    msgs.append(image("/camera/color/image_raw", 2 * S, [[1, 2, 3]], encoding="rgb8"))
+    msgs.append(odometry("/odom", 2 * S, "odom", "base_link"))
+    msgs.sort(key=lambda m: m.log_time_ns)
+    return write_log(tmp_path / ("log" + SUFFIX[fmt]), fmt, msgs)
+
+
+@pytest.mark.parametrize("fmt", ["mcap-ros2", "ros1"])
+def test_info_on_a_tiny_log(tmp_path, fmt):
+    res = _run(_robot_log(tmp_path, fmt))
+    assert res.exit_code == 0, res.output
+    out = res.output
+    assert f"({fmt})" in out
+    assert "duration:  1.00 s" in out
+    lines = {ln.split()[0]: ln for ln in out.splitlines() if ln.startswith("/")}
+    assert lines["/scan"].split()[1:5] == ["sensor_msgs/msg/LaserScan", "11", "10.0", "Hz"]
+    assert lines["/scan"].endswith("uses: laser, frame laser")
+    assert lines["/tf"].split()[2] == "11" and lines["/tf"].endswith("uses: tf")
+    assert lines["/odom"].endswith("uses: odometry")
+    assert lines["/chatter"].split()[1:3] == ["std_msgs/msg/String", "1"]
+    assert lines["/camera/color/image_raw"].endswith("skips")
+    assert "tf tree:\n  odom\n    base_link  [tf, 11 samples]" in out
+    assert "fixed frame: odom" in out
+    assert ("/scan: every frame would be skipped: no transform base_link -> laser: frame laser is not in tf; "
+            "give its mount with --tf base_link:laser=x,y,z,roll,pitch,yaw") in out
+    assert "/camera/color/image_raw would be skipped: Image whose name does not say depth" in out
+    assert "(encoding rgb8)" in out
+
+
+def test_info_with_mount_and_depth_pairing(tmp_path):
+    msgs = [tf(S, [("odom", "base_link")]), scan("/scan", S + 1, [1.0]),
+            camera_info("/cam/depth/camera_info", S, width=1, height=1, fx=1, fy=1, cx=0, cy=0),
+            image("/cam/depth/image_raw", S + 2, [[1000]], frame_id="cam_optical")]
+    path = write_log(tmp_path / "log.bag", "ros1", msgs)
+    res = _run(path, "--tf", "base_link:laser=0.1,0,0.2,0,0,0", "--tf", "/base_link:/cam_optical=0,0,0.5,0,0,0")
+    assert res.exit_code == 0, res.output
+    assert "      laser  [user mount]" in res.output
+    assert "uses: depth, frame cam_optical (CameraInfo /cam/depth/camera_info)" in res.output
+    assert "warnings: none" in res.output
+    res = _run(path, "--scan-topic", "/scan")
+    assert "/cam/depth/image_raw would be skipped: Image not chosen" in res.output
+
+
+def test_info_errors_are_one_line_with_status_2(tmp_path):
+    res = _run(tmp_path / "missing.bag")
+    assert res.exit_code == 2
+    assert res.output.strip().splitlines() == [
+        f"ltmap: error: log not found: {tmp_path / 'missing.bag'}; give a ROS 1 .bag file, a ROS 2 bag folder "
+        f"(with metadata.yaml) or an .mcap file"]
+    bad = _robot_log(tmp_path)
+    res = _run(bad, "--scan-topic", "/laser")
+    assert res.exit_code == 2 and "--scan-topic /laser:" in res.output and "its LaserScan topics: /scan" in res.output
+    res = _run(bad, "--tf", "base_link:laser=1,2")
+    assert res.exit_code == 2 and "expected parent:child=x,y,z,roll,pitch,yaw" in res.output
+
+
+def test_info_on_a_truncated_log(tmp_path):
+    msgs = [scan("/scan", (i + 1) * S // 10, [1.0] * 20) for i in range(60)]
+    path = write_log(tmp_path / "cut.mcap", "mcap-ros2", msgs, chunk_size=600)
+    truncate(path, 0.5)
+    res = _run(path)
+    assert res.exit_code == 2
+    assert "log is truncated or corrupt: " in res.output and "--allow-truncated" in res.output.splitlines()[-1]
+    res = _run(path, "--allow-truncated")
+    assert res.exit_code == 0
+    count = int(next(ln for ln in res.output.splitlines() if ln.startswith("/scan")).split()[2])
+    assert 0 < count < 60
+    assert f"reading stopped after {count} messages" in res.output
+
+
+@pytest.mark.skipif(not (REAL / "ist_pioneer3dx_test1.bag").exists(), reason=f"real logs not in {REAL}")
+def test_info_real_pioneer_bag():
+    res = _run(REAL / "ist_pioneer3dx_test1.bag")
+    assert res.exit_code == 0, res.output
+    lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.startswith("/")}
+    assert lines["/scan"][1:3] == ["sensor_msgs/msg/LaserScan", "311"]
+    assert lines["/pose"][1:3] == ["nav_msgs/msg/Odometry", "313"]
+    assert lines["/tf"][2] == "317"
+    assert lines["/sonar"][1] == "p2os_msgs/msg/SonarArray"
+    assert "duration:  31.3" in res.output
+    assert "give its mount with --tf base_link:laser=x,y,z,roll,pitch,yaw" in res.output
+    res = _run(REAL / "ist_pioneer3dx_test1.bag", "--tf", "base_link:laser=0.1,0,0.3,0,0,0")
+    assert res.exit_code == 0 and "warnings: none" in res.output
+
+
+@pytest.mark.skipif(not (REAL / "comprobo22_macfirst_floor_take_2").exists(), reason=f"real logs not in {REAL}")
+def test_info_real_comprobo_bag():
+    res = _run(REAL / "comprobo22_macfirst_floor_take_2")
+    assert res.exit_code == 0, res.output
+    lines = {ln.split()[0]: ln.split() for ln in res.output.splitlines() if ln.startswith("/")}
+    assert lines["/scan"][1:3] == ["sensor_msgs/msg/LaserScan", "357"]
+    assert lines["/odom"][2] == "920" and lines["/tf"][2] == "953" and lines["/tf_static"][2] == "2"
+    assert "(ros2-sqlite3)" in res.output and "duration:  46.2" in res.output
+    assert "      rplidar_link  [static]" in res.output
+    assert "fixed frame: odom" in res.output
+    assert "warnings: none" in res.output
