@@ -173,11 +173,12 @@ class Replay:
                 stats = logs.stats
             while self._pending:
                 self._process(*heapq.heappop(self._pending)[2:])
+            self._report_progress(logs.end_ns, force=True)
             stopped_at = stats.stopped_at
             messages = dict(stats.messages_per_topic)
             not_decoded = dict(getattr(logs, "skipped", {}) or {})
             topics_not_used = dict(sel.skipped)
-            selected = {"scans": sel.scans, "clouds": sel.clouds, "depth": sel.depth}
+            selected = {"scans": sel.scans, "clouds": sel.clouds, "depth": sel.depths}
 
         total_used = sum(self.counts.used.values())
         if total_used == 0:

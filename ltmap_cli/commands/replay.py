@@ -32,8 +32,8 @@ class ProgressBar:
         if self.tty:
             self.stream.write("\r" + line)
             self.stream.flush()
-        elif int(frac * 10) > self._last_decile:
-            self._last_decile = int(frac * 10)
+        elif int(frac * 10) > self._last_decile or (frac >= 1.0 and self._last_decile < 10):
+            self._last_decile = 10 if frac >= 1.0 else int(frac * 10)
             self.stream.write(line + "\n")
 
     def close(self) -> None:
