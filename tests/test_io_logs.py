@@ -299,3 +299,15 @@ def test_real_comprobo_ros2_bag():
     placed = sum(buf.try_lookup("odom", "rplidar_link", t)[0] is not None for t in stamps)
     assert placed > 340  # static tf ~4 h older than the log is timeless
     assert math.isclose(buf.lookup("base_link", "rplidar_link", 0)[3, 3], 1.0)
+
+
+def test_ros1_bag_with_old_roslib_header_definition(tmp_path):
+    old = {"roslib/msg/Header": "uint32 seq\ntime stamp\nstring frame_id",
+           "old_msgs/msg/Ping": "roslib/Header header\nint32 level"}
+    msg = type(scan("/x", 0, []))("/ping", S, "old_msgs/msg/Ping",
+                                  {"header": {"stamp": 5 * S + 7, "frame_id": "base"}, "level": 4})
+    path = _log(tmp_path, "ros1", [msg], name="old", extra_types=old)
+    with open_logs(path) as logs:
+        (topic, t, decode, where), = list(logs.raw(["/ping"]))
+        m = decode()
+    assert (m.level, m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec) == (4, "base", 5, 7)
