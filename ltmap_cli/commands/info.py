@@ -19,8 +19,15 @@ def _rate(count: int, first: int | None, last: int | None) -> str:
     return f"{(count - 1) / ((last - first) / 1e9):.1f} Hz"
 
 
-def gather(paths: list[Path], scan_topics=(), cloud_topics=(), depth_topics=(), tf_mounts=(),
-           fixed_frame: str = "", allow_truncated: bool = False) -> dict:
+def gather(
+    paths: list[Path],
+    scan_topics=(),
+    cloud_topics=(),
+    depth_topics=(),
+    tf_mounts=(),
+    fixed_frame: str = "",
+    allow_truncated: bool = False,
+) -> dict:
     """Everything `info` shows, as a dict (also used by tests). Raises like the readers."""
     from ..io import decode as dec
     from ..io.logs import IMAGE, TruncatedLogError, open_logs
@@ -85,8 +92,10 @@ def gather(paths: list[Path], scan_topics=(), cloud_topics=(), depth_topics=(), 
                 used[topic] += f" (CameraInfo {sel.depths[topic]})"
                 enc = str(getattr(msg, "encoding", ""))
                 if enc not in ("16UC1", "32FC1", "mono16"):
-                    warnings.append(f"{topic}: encoding {enc!r} is not a depth encoding (16UC1, 32FC1); replay "
-                                    f"would stop on it: leave it out with --depth-topic naming others")
+                    warnings.append(
+                        f"{topic}: encoding {enc!r} is not a depth encoding (16UC1, 32FC1); replay "
+                        f"would stop on it: leave it out with --depth-topic naming others"
+                    )
             if fixed is not None:
                 problem = buf.connection_problem(fixed, frame)
                 if problem:
@@ -96,28 +105,49 @@ def gather(paths: list[Path], scan_topics=(), cloud_topics=(), depth_topics=(), 
             why += f" (encoding {sensor_first[topic].encoding})"
         warnings.append(f"{topic} would be skipped: {why}")
     if not sel.sensor_topics:
-        warnings.append("no usable LaserScan, PointCloud2 or depth Image topic: replay would have nothing to map")
+        warnings.append(
+            "no usable LaserScan, PointCloud2 or depth Image topic: replay would have nothing to map"
+        )
     for edge, n in buf.ignored.items():
         if edge.endswith(" from odom"):
             continue  # odometry duplicating /tf is normal: tf is used
-        warnings.append(f"{n} samples of {edge} ignored: the edge also comes from a stronger source "
-                        f"(--tf mount, then /tf and /tf_static, then odometry)")
+        warnings.append(
+            f"{n} samples of {edge} ignored: the edge also comes from a stronger source "
+            f"(--tf mount, then /tf and /tf_static, then odometry)"
+        )
     if stopped:
         warnings.append(f"log is truncated or corrupt: {stopped}")
     starts = [v for v in first.values()]
     ends = [v for v in last.values()]
     result = {
-        "logs": names, "formats": formats,
-        "start_ns": min(starts) if starts else None, "end_ns": max(ends) if ends else None,
-        "topics": {n: {"type": topics[n].msgtype, "count": counts.get(n, 0), "first_ns": first.get(n),
-                       "last_ns": last.get(n)} for n in sorted(topics)},
-        "frames": sorted(frames), "tree": buf.tree_text(), "fixed_frame": fixed,
-        "used": used, "tf_topics": sel.tf, "odometry_topics": sel.odometry,
-        "skipped": dict(sel.skipped), "warnings": warnings, "stopped_at": stopped,
+        "logs": names,
+        "formats": formats,
+        "start_ns": min(starts) if starts else None,
+        "end_ns": max(ends) if ends else None,
+        "topics": {
+            n: {
+                "type": topics[n].msgtype,
+                "count": counts.get(n, 0),
+                "first_ns": first.get(n),
+                "last_ns": last.get(n),
+            }
+            for n in sorted(topics)
+        },
+        "frames": sorted(frames),
+        "tree": buf.tree_text(),
+        "fixed_frame": fixed,
+        "used": used,
+        "tf_topics": sel.tf,
+        "odometry_topics": sel.odometry,
+        "skipped": dict(sel.skipped),
+        "warnings": warnings,
+        "stopped_at": stopped,
     }
     if stopped and not allow_truncated:
-        result["error"] = TruncatedLogError(f"log is truncated or corrupt: {stopped}; to use what was read "
-                                            f"before that point, pass --allow-truncated")
+        result["error"] = TruncatedLogError(
+            f"log is truncated or corrupt: {stopped}; to use what was read "
+            f"before that point, pass --allow-truncated"
+        )
     return result
 
 
@@ -149,8 +179,10 @@ def render(r: dict) -> str:
             use = "skips"
         else:
             use = ""
-        lines.append(f"{name:<{width}}  {t['type']:<{twidth}}  {t['count']:>7}  "
-                     f"{_rate(t['count'], t['first_ns'], t['last_ns']):>9}  {use}".rstrip())
+        lines.append(
+            f"{name:<{width}}  {t['type']:<{twidth}}  {t['count']:>7}  "
+            f"{_rate(t['count'], t['first_ns'], t['last_ns']):>9}  {use}".rstrip()
+        )
     lines.append("")
     lines.append("tf tree:" if r["tree"] else "tf tree:   (no transforms)")
     if r["tree"]:
@@ -167,15 +199,27 @@ def render(r: dict) -> str:
 
 @click.command("info")
 @click.argument("logs", nargs=-1, required=True, type=click.Path(path_type=Path))
-@click.option("--scan-topic", "scan_topics", multiple=True, help="LaserScan topic replay would use (repeatable).")
-@click.option("--cloud-topic", "cloud_topics", multiple=True, help="PointCloud2 topic replay would use (repeatable).")
-@click.option("--depth-topic", "depth_topics", multiple=True, help="Depth Image topic replay would use (repeatable).")
-@click.option("--tf", "tf_mounts", multiple=True, metavar="PARENT:CHILD=x,y,z,roll,pitch,yaw",
-              help="A sensor mount missing from the log (repeatable).")
+@click.option(
+    "--scan-topic", "scan_topics", multiple=True, help="LaserScan topic replay would use (repeatable)."
+)
+@click.option(
+    "--cloud-topic", "cloud_topics", multiple=True, help="PointCloud2 topic replay would use (repeatable)."
+)
+@click.option(
+    "--depth-topic", "depth_topics", multiple=True, help="Depth Image topic replay would use (repeatable)."
+)
+@click.option(
+    "--tf",
+    "tf_mounts",
+    multiple=True,
+    metavar="PARENT:CHILD=x,y,z,roll,pitch,yaw",
+    help="A sensor mount missing from the log (repeatable).",
+)
 @click.option("--fixed-frame", default="", help="Fixed frame (default: map if tf has it, else odom).")
 @click.option("--allow-truncated", is_flag=True, help="Exit 0 on a truncated or corrupt log.")
-def info(logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame,
-         allow_truncated) -> None:
+def info(
+    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated
+) -> None:
     """Show what LOG(s) hold: topics, types, counts, duration, rates, the tf tree, which topics
     `ltmap replay` would use, and warnings for what it would skip and why."""
     r = gather(list(logs), scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated)
