@@ -331,21 +331,45 @@ def test_project_voxels_band_and_classes():
     np.testing.assert_array_equal(g.data, expect)
 
 
-def test_ot_input_goes_through_read_ot(tmp_path, monkeypatch):
-    import ltmap_cli.io as io_pkg
+def test_ot_snapshots_projected_and_3d(tmp_path):
+    from ltmap_cli.io.ot import write_ot
 
-    class FakeOt:
-        @staticmethod
-        def read_ot(path):
-            return np.array([[0, 0, 4], [1, 0, 4]]), np.array([1.0, -1.0], np.float32), 0.1
+    res = 0.1
+    # A: a 3-voxel wall at k = 4 ([0.4, 0.5) m, in the band) over free floor voxels at k = 1
+    floor = [[i, j, 1] for i in range(4) for j in range(2)]
+    wall = [[1, 0, 4], [2, 0, 4], [3, 0, 4]]
+    ka = np.array(floor + wall)
+    la = np.array([-1.0] * len(floor) + [2.0] * len(wall), np.float32)
+    # B: the wall voxel (3,0,4) is gone (seen free), a voxel at k = 20 (2.0 m, above the band)
+    # and a table top at (0,1,7) appear
+    kb = np.array(floor + [[1, 0, 4], [2, 0, 4], [3, 0, 4], [2, 1, 20], [0, 1, 7]])
+    lb = np.array([-1.0] * len(floor) + [2.0, 2.0, -1.0, 2.0, 2.0], np.float32)
+    write_ot(tmp_path / "a.ot", ka, la, res)
+    write_ot(tmp_path / "b.ot", kb, lb, res)
 
-    monkeypatch.setitem(__import__("sys").modules, "ltmap_cli.io.ot", FakeOt)
-    monkeypatch.setattr(io_pkg, "ot", FakeOt, raising=False)
-    p = tmp_path / "s.ot"
-    p.write_bytes(b"x")
-    g = load_grid(p)
-    np.testing.assert_array_equal(g.data, [[100, 0]])
-    assert g.resolution == 0.1
+    r = run(tmp_path / "a.ot", tmp_path / "b.ot", "--json")
+    assert r.exit_code == 1, r.output
+    rep = json.loads(r.output)
+    assert rep["resolution"] == pytest.approx(0.1)
+    assert rep["cells"]["added"] == 1  # (0, 1): the table top; the k = 20 voxel is out of the band
+    assert rep["cells"]["removed"] == 1  # column (3, 0)
+    assert rep["cells"]["unchanged_occupied"] == 2
+    assert rep["m2"]["added"] == pytest.approx(0.01)
+
+    r = run(tmp_path / "a.ot", tmp_path / "b.ot", "--3d", "--json")
+    assert r.exit_code == 1, r.output
+    rep = json.loads(r.output)
+    v = rep["voxels"]
+    assert v["added"] == 2 and v["removed"] == 1 and v["unchanged_occupied"] == 2
+    assert v["unknown_changed"] == 0  # the two new voxels are added, not unknown-changed
+    assert rep["iou"] == pytest.approx(2 / 5)
+    assert rep["m3"]["added"] == pytest.approx(0.002)
+    # text output and a same-map comparison
+    r = run(tmp_path / "a.ot", tmp_path / "a.ot", "--3d")
+    assert r.exit_code == 0 and "result: same" in r.output
+    # --z-band moves the projection band: with [1.9, 2.5] only the k = 20 voxel of B counts
+    rep = json.loads(run(tmp_path / "a.ot", tmp_path / "b.ot", "--z-band", "1.9", "2.5", "--json").output)
+    assert rep["cells"]["added"] == 1 and rep["cells"]["occupied_a"] == 0
 
 
 def test_load_grid_npz_message(tmp_path):
