@@ -54,26 +54,70 @@ def _positive(ctx, param, value):
 
 @click.command("build-static", help=HELP, short_help="Build the static map from a plan.")
 @click.argument("plan", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("-o", "--output", type=click.Path(file_okay=False, path_type=Path), default=Path("static_out"),
-              show_default=True, help="Output folder.")
-@click.option("--resolution", type=float, default=None, callback=_positive,
-              help="Cell size in metres [default: 0.05 for a plan; a map's own].")
-@click.option("--scale", type=float, default=None, callback=_positive, metavar="METRES_PER_UNIT",
-              help="Metres per SVG user unit (overrides width/height and the scale element).")
-@click.option("--wall-height", type=float, default=2.5, show_default=True, callback=_positive,
-              help="Height (m) the walls are extruded to.")
-@click.option("--wall-thickness", type=float, default=0.10, show_default=True, callback=_positive,
-              help="Thickness (m) of hairline walls and strokes without a width.")
-@click.option("--origin", type=str, default=None, callback=_origin, metavar="X,Y,YAW",
-              help="Map pose of the plan's lower-left corner [default: 0,0,0].")
-@click.option("--furniture", type=click.Choice(["none", "static", "long-term"]), default="none",
-              show_default=True,
-              help="static: furniture is part of S (to its data-height-m, else the wall height); "
-                   "long-term: it seeds the initial long-term layer.")
-@click.option("--max-cells", type=int, default=None,
-              help="Refuse maps with more cells than this [default: 2e8, about 3 GB].")
-def build_static(plan: Path, output: Path, resolution, scale, wall_height, wall_thickness, origin,
-                 furniture, max_cells) -> None:
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(file_okay=False, path_type=Path),
+    default=Path("static_out"),
+    show_default=True,
+    help="Output folder.",
+)
+@click.option(
+    "--resolution",
+    type=float,
+    default=None,
+    callback=_positive,
+    help="Cell size in metres [default: 0.05 for a plan; a map's own].",
+)
+@click.option(
+    "--scale",
+    type=float,
+    default=None,
+    callback=_positive,
+    metavar="METRES_PER_UNIT",
+    help="Metres per SVG user unit (overrides width/height and the scale element).",
+)
+@click.option(
+    "--wall-height",
+    type=float,
+    default=2.5,
+    show_default=True,
+    callback=_positive,
+    help="Height (m) the walls are extruded to.",
+)
+@click.option(
+    "--wall-thickness",
+    type=float,
+    default=0.10,
+    show_default=True,
+    callback=_positive,
+    help="Thickness (m) of hairline walls and strokes without a width.",
+)
+@click.option(
+    "--origin",
+    type=str,
+    default=None,
+    callback=_origin,
+    metavar="X,Y,YAW",
+    help="Map pose of the plan's lower-left corner [default: 0,0,0].",
+)
+@click.option(
+    "--furniture",
+    type=click.Choice(["none", "static", "long-term"]),
+    default="none",
+    show_default=True,
+    help="static: furniture is part of S (to its data-height-m, else the wall height); "
+    "long-term: it seeds the initial long-term layer.",
+)
+@click.option(
+    "--max-cells",
+    type=int,
+    default=None,
+    help="Refuse maps with more cells than this [default: 2e8, about 3 GB].",
+)
+def build_static(
+    plan: Path, output: Path, resolution, scale, wall_height, wall_thickness, origin, furniture, max_cells
+) -> None:
     from ..io.mapfile import map_file_paths, read_map_yaml, write_map
     from ..io.static_layer import MAP_YAML, write_static_layer
     from ..static.build import DEFAULT_MAX_CELLS, build_from_map, build_from_plan
@@ -82,7 +126,9 @@ def build_static(plan: Path, output: Path, resolution, scale, wall_height, wall_
     t0 = time.perf_counter()
     max_cells = DEFAULT_MAX_CELLS if max_cells is None else max_cells
     if plan.suffix.lower() in (".yaml", ".yml"):
-        layer, stats = build_from_map(read_map_yaml(plan), resolution, wall_height, origin, max_cells, str(plan))
+        layer, stats = build_from_map(
+            read_map_yaml(plan), resolution, wall_height, origin, max_cells, str(plan)
+        )
         what = "map"
     else:
         parsed = parse_plan(plan, scale, wall_thickness, origin or (0.0, 0.0, 0.0))
@@ -101,7 +147,7 @@ def build_static(plan: Path, output: Path, resolution, scale, wall_height, wall_
     pgm = map_file_paths(yaml_path)[1]
     click.echo(
         f"{output}/: {what}: walls {stats.wall_length_m:.1f} m long (half the wall outline's perimeter), "
-        f"{stats.wall_area_m2:.2f} m^2, {stats.wall_cells} cells; {stats.doors} doors; "
+        f"{stats.wall_area_m2:.2f} m^2, {stats.wall_cells} wall cells; {stats.doors} doors; "
         f"{g.width} x {g.height} cells = {g.width * g.resolution:.2f} x {g.height * g.resolution:.2f} m "
         f"at {g.resolution:g} m, origin ({g.origin[0]:g}, {g.origin[1]:g}); "
         + ("; ".join(extra) + "; " if extra else "")

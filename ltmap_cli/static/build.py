@@ -40,7 +40,7 @@ class BuildStats:
 
     wall_length_m: float  # half the perimeter of the wall outline (walls + windows, doors carved)
     wall_area_m2: float
-    wall_cells: int
+    wall_cells: int  # walls and windows (not furniture)
     free_cells: int
     doors: int
     furniture: int
@@ -68,13 +68,16 @@ def _human(n: float) -> str:
     return f"{n:.1f} TB"
 
 
-def shapes_mask(shapes: list[PlanShape], lat: Lattice):
-    """(mask, region): the cells of a group of shapes by both rules, and their union polygon."""
+def shapes_mask(shapes: list[PlanShape], lat: Lattice, thin_rule: bool = True):
+    """(mask, region): the cells of a group of shapes (centre rule, and the thin rule unless
+    ``thin_rule`` is False), and their union polygon."""
     import shapely
 
     regions = [s.region for s in shapes if s.region is not None and not s.region.is_empty]
     region = shapely.union_all(regions) if regions else None
     mask = polygon_mask(region, lat)
+    if not thin_rule:
+        return mask, region
     thin = math.sqrt(2.0) * lat.r
     spines = [st.line if not st.closed else np.vstack([st.line, st.line[:1]])
               for s in shapes for st in s.strokes if st.width < thin]
@@ -107,8 +110,12 @@ def build_from_plan(
     check_size(lat, max_cells, plan.source)
 
     wall_mask, wall_region = shapes_mask(walls, lat)
-    door_mask, door_region = shapes_mask(doors, lat) if doors else (np.zeros(lat.shape, bool), None)
-    wall_mask &= ~door_mask
+    # doors carve the cells whose centre they cover (no thin rule: a door's outline drawn in thin
+    # lines must not cut notches into the jambs it touches)
+    door_mask, door_region = shapes_mask(doors, lat, thin_rule=False) if doors else (None, None)
+    if door_mask is not None:
+        wall_mask &= ~door_mask
+    n_wall_cells = int(wall_mask.sum())
 
     height = np.where(wall_mask, np.float32(wall_height), np.float32(0)).astype(np.float32)
     seed = None
@@ -144,7 +151,7 @@ def build_from_plan(
     stats = BuildStats(
         wall_length_m=float(wall_geom.length / 2) if wall_geom is not None else 0.0,
         wall_area_m2=float(wall_geom.area) if wall_geom is not None else 0.0,
-        wall_cells=int(occupied.sum()),
+        wall_cells=n_wall_cells,
         free_cells=int((data == 0).sum()),
         doors=n_doors,
         furniture=len(pieces),

@@ -49,7 +49,7 @@ class Lattice:
         j0 = math.floor(miny / r + 1e-9)
         i1 = max(math.ceil(maxx / r - 1e-9), i0 + 1)
         j1 = max(math.ceil(maxy / r - 1e-9), j0 + 1)
-        return cls(i0 * r, j0 * r, r, j1 - j0, i1 - i0)
+        return cls(round(i0 * r, 12), round(j0 * r, 12), r, j1 - j0, i1 - i0)
 
     def centres(self) -> tuple[np.ndarray, np.ndarray]:
         """Cell-centre coordinates: x (W,) and y (H,)."""

@@ -216,7 +216,7 @@ def _subpaths(shape, px_to_uu) -> list[tuple[np.ndarray, bool]]:
     """(points in user units (N, 2), closed) for each subpath; curves flattened (in px)."""
     from svgelements import Close, Line, Move, Path
 
-    path = Path(shape)
+    path = abs(Path(shape))  # segments in viewport pixels, every transform applied
     out = []
     for sub in path.as_subpaths():
         pts: list[np.ndarray] = []
