@@ -1,0 +1,322 @@
+"""`ltmap replay` end to end on tiny real logs in every format, with geometry known exactly.
+
+The scene: a square room with walls on x = +-2.025 and y = +-2.025 m (cell centres at 0.05 m),
+an optional 0.2 m square pillar, a robot standing at (1.0, 0.5) with yaw 30 degrees and a laser
+mounted 0.1 m ahead and 0.3 m up. Ranges are ray cast here in float64 and stored as float32; the
+expected occupied cells are computed from that geometry, independently of the pipeline.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from logfactory import FORMATS, Msg, camera_info, image, scan, string, tf, truncate, write_log, yaw_quat
+
+from ltmap_cli.cli import cli
+from ltmap_cli.io.mapfile import read_map_yaml
+
+R = 0.05
+WALL = 2.025
+ROBOT = (1.0, 0.5, math.radians(30))
+MOUNT = (0.1, 0.0, 0.3)
+N_BEAMS = 180
+T0 = 1_000_000_000
+PILLAR = (-1.1, -1.1, -0.9, -0.9)  # x0, y0, x1, y1
+
+
+def laser_pose():
+    x, y, yaw = ROBOT
+    return x + math.cos(yaw) * MOUNT[0], y + math.sin(yaw) * MOUNT[0], yaw
+
+
+def beam_angles():
+    amin = np.float32(-math.pi)
+    inc = np.float32(2 * math.pi / N_BEAMS)
+    return float(amin), float(inc), float(amin) + float(inc) * np.arange(N_BEAMS)
+
+
+def cast(pillar: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(ranges float32, hit points float64 (N, 2)) of the laser in the room."""
+    lx, ly, yaw = laser_pose()
+    _, _, ang = beam_angles()
+    th = yaw + ang
+    dx, dy = np.cos(th), np.sin(th)
+    with np.errstate(divide="ignore"):
+        tx = np.where(dx > 0, (WALL - lx) / dx, (-WALL - lx) / dx)
+        ty = np.where(dy > 0, (WALL - ly) / dy, (-WALL - ly) / dy)
+    t = np.minimum(np.abs(tx), np.abs(ty))
+    if pillar:
+        x0, y0, x1, y1 = PILLAR
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a, b = (x0 - lx) / dx, (x1 - lx) / dx
+            c, d = (y0 - ly) / dy, (y1 - ly) / dy
+            tn = np.maximum(np.minimum(a, b), np.minimum(c, d))
+            tf_ = np.minimum(np.maximum(a, b), np.maximum(c, d))
+        t = np.where((tn <= tf_) & (tn > 0), np.minimum(t, tn), t)
+    r = t.astype(np.float32)
+    pts = np.stack([lx + r.astype(np.float64) * dx, ly + r.astype(np.float64) * dy], axis=1)
+    return r, pts
+
+
+def room_messages(t_start_s: float, duration_s: float, pillar: bool, rate_hz: float = 5.0, static_mount=True):
+    msgs: list[Msg] = []
+    if static_mount:
+        msgs.append(tf(T0, [("base_link", "laser", MOUNT, (0, 0, 0, 1))], static=True))
+    x, y, yaw = ROBOT
+    r, _ = cast(pillar)
+    amin, inc, _ = beam_angles()
+    t_tf = t_start_s - 0.1
+    n_scans = int(round(duration_s * rate_hz))
+    scans = [T0 + int(round((t_start_s + i / rate_hz) * 1e9)) for i in range(n_scans)]
+    events = []
+    while t_tf <= t_start_s + duration_s + 0.2:
+        ns = T0 + int(round(t_tf * 1e9))
+        events.append((ns, 0, tf(ns, [("odom", "base_link", (x, y, 0.0), yaw_quat(yaw))])))
+        t_tf += 0.1
+    for ns in scans:
+        events.append((ns, 1, scan("/scan", ns, r, frame_id="laser", angle_min=amin, angle_increment=inc,
+                                   range_min=0.05, range_max=10.0)))  # fmt: skip
+    events.sort(key=lambda e: (e[0], e[1]))
+    return msgs + [e[2] for e in events]
+
+
+def expected_cells(pillar: bool) -> tuple[set, set]:
+    """(cells that must be occupied, cells that may be: neighbours of hits within 1e-4 m of a
+    cell boundary, where float32 ranges and a different order of operations may round either way)."""
+    _, pts = cast(pillar)
+    must, may = set(), set()
+    for px, py in pts:
+        c = (math.floor(px / R), math.floor(py / R))
+        fx, fy = px / R - math.floor(px / R), py / R - math.floor(py / R)
+        near = [d for d, f in ((0, fx), (1, fy)) if min(f, 1 - f) < 1e-4 / R]
+        if not near:
+            must.add(c)
+        else:
+            for di in (-1, 0, 1):
+                for dj in (-1, 0, 1):
+                    may.add((c[0] + di, c[1] + dj))
+    return must, may
+
+
+def occupied_cells(yaml_path: Path) -> set:
+    g = read_map_yaml(yaml_path)
+    rows, cols = np.nonzero(g.data == 100)
+    i0 = round(g.origin[0] / g.resolution)
+    j0 = round(g.origin[1] / g.resolution)
+    return {(int(c) + i0, int(r) + j0) for r, c in zip(rows, cols)}
+
+
+def run(args, **kw):
+    result = CliRunner().invoke(cli, args, catch_exceptions=False, **kw)
+    return result
+
+
+def assert_one_line_error(result, *needles):
+    assert result.exit_code == 2, result.output
+    lines = [ln for ln in result.output.splitlines() if ln.strip()]
+    err = [ln for ln in lines if ln.startswith("ltmap: error:")]
+    assert len(err) == 1, result.output
+    assert "Traceback" not in result.output
+    for n in needles:
+        assert n in err[0], err[0]
+
+
+def no_temp_files(folder: Path) -> bool:
+    return not [p for p in folder.rglob("*") if ".tmp" in p.name]
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_walls_seen_17_s_are_in_the_map_to_the_cell(tmp_path, fmt):
+    log = write_log(tmp_path / f"room{'.bag' if fmt == 'ros1' else '.mcap' if fmt.startswith('mcap') else ''}",
+                    fmt, room_messages(0.0, 17.0, pillar=True))  # fmt: skip
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames_used"] == {"/scan": 85}
+    assert report["frames_skipped"] == {}
+    assert report["fixed_frame"] == "odom"
+    must, may = expected_cells(pillar=True)
+    occ = occupied_cells(out / "map.yaml")
+    assert len(must) > 150
+    assert must <= occ, sorted(must - occ)[:10]
+    assert occ <= must | may, sorted(occ - must - may)[:10]
+    # free between the robot and the walls, unknown outside the room
+    g = read_map_yaml(out / "map.yaml")
+    i0, j0 = round(g.origin[0] / R), round(g.origin[1] / R)
+    assert g.data[math.floor(0.5 / R) - j0, math.floor(0.0 / R) - i0] == 0
+    assert (g.data[:, : -41 - i0] == -1).all()  # x < -2.05: behind the wall, never seen
+    for name in ("map.pgm", "map.yaml", "map.png", "long_term.yaml", "config.yaml", "snapshots/state_final.npz",
+                 "snapshots/long_term_final.ot", "snapshots/long_term_final.ply"):  # fmt: skip
+        assert (out / name).is_file(), name
+    assert no_temp_files(out)
+
+
+def test_walls_seen_less_than_st_rise_s_stay_out_of_the_map(tmp_path):
+    log = write_log(tmp_path / "short.mcap", "mcap-ros2", room_messages(0.0, 10.0, pillar=False))
+    out = tmp_path / "out"
+    assert run(["replay", str(log), "-o", str(out), "-q"]).exit_code == 0
+    assert occupied_cells(out / "map.yaml") == set()
+    # ... but the same log with st_rise_s = 5 s puts them there
+    out2 = tmp_path / "out2"
+    r = run(["replay", str(log), "-o", str(out2), "-q", "--set", "map.layers.st_rise_s=5"])
+    assert r.exit_code == 0
+    must, _ = expected_cells(pillar=False)
+    assert must <= occupied_cells(out2 / "map.yaml")
+    assert "st_rise_s: 5.0" in (out2 / "config.yaml").read_text()
+
+
+def test_missing_mount_fails_naming_the_transform_and_the_fix_then_tf_flag_fixes_it(tmp_path):
+    log = write_log(tmp_path / "nomount.mcap", "mcap-ros2", room_messages(0.0, 17.0, True, static_mount=False))
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q"])
+    assert_one_line_error(r, "every sensor frame was skipped", "base_link -> laser", "--tf base_link:laser=")
+    assert not (out / "map.yaml").exists()
+    r = run(["replay", str(log), "-o", str(out), "-q", "--tf", "base_link:laser=0.1,0,0.3,0,0,0"])
+    assert r.exit_code == 0, r.output
+    must, may = expected_cells(pillar=True)
+    occ = occupied_cells(out / "map.yaml")
+    assert must <= occ and occ <= must | may
+
+
+def lt_occupied(out: Path) -> set:
+    from ltmap_cli.io.state import read_state
+
+    arrays, _ = read_state(out / "snapshots" / "state_final.npz")
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+
+    m = LayeredMap(MapConfig())
+    m.load_state_arrays(arrays)
+    return {tuple(k) for k in m.occupied_keys("LT").tolist()}
+
+
+def test_resume_gives_the_same_long_term_map_as_one_run(tmp_path):
+    # day 1: the pillar stands 17 s; day 2: it is gone for 13 s. LT must forget it either way.
+    a = write_log(tmp_path / "a.mcap", "mcap-ros2", room_messages(0.0, 17.0, pillar=True))
+    b = write_log(tmp_path / "b.mcap", "mcap-ros2", room_messages(17.0, 13.0, pillar=False, static_mount=True))
+    one, day1, day2 = tmp_path / "one", tmp_path / "day1", tmp_path / "day2"
+    assert run(["replay", str(a), str(b), "-o", str(one), "-q"]).exit_code == 0
+    assert run(["replay", str(a), "-o", str(day1), "-q"]).exit_code == 0
+    r = run(["replay", str(b), "-o", str(day2), "-q", "--resume", str(day1)])
+    assert r.exit_code == 0, r.output
+    day1_lt, day2_lt, one_lt = lt_occupied(day1), lt_occupied(day2), lt_occupied(one)
+    pillar = {k for k in day1_lt if PILLAR[0] - R <= (k[0] + 0.5) * R <= PILLAR[2] + R
+              and PILLAR[1] - R <= (k[1] + 0.5) * R <= PILLAR[3] + R}  # fmt: skip
+    assert len(pillar) >= 3  # day 1 learned the pillar
+    assert not (pillar & day2_lt) and not (pillar & one_lt)  # and both forgot it
+    assert day2_lt == one_lt
+    from ltmap_cli.io.state import read_state
+
+    day1_arrays, _ = read_state(day1 / "snapshots" / "state_final.npz")
+    n_lt = int((day1_arrays["D_lt"] > 0).sum())
+    assert json.loads((day2 / "report.json").read_text())["resume"]["long_term_voxels"] == n_lt
+
+
+def test_ot_snapshot_read_by_octomap_has_our_long_term_voxels(tmp_path):
+    pyoctomap = pytest.importorskip("pyoctomap")
+    log = write_log(tmp_path / "room.mcap", "mcap-ros2", room_messages(0.0, 17.0, pillar=True))
+    out = tmp_path / "out"
+    assert run(["replay", str(log), "-o", str(out), "-q"]).exit_code == 0
+    ours = lt_occupied(out)
+    assert len(ours) > 150
+    tree = pyoctomap.OcTree(0.1).read(str(out / "snapshots" / "long_term_final.ot"))
+    assert tree.getResolution() == pytest.approx(R)
+    theirs = set()
+    for it in tree.begin_leafs():
+        if tree.isNodeOccupied(it):
+            c = np.asarray(it.getCoordinate(), dtype=float)
+            theirs.add(tuple(int(v) for v in np.floor(c / R)))
+    assert theirs == ours
+
+
+def test_resume_from_an_ot_snapshot_restores_the_long_term_map(tmp_path):
+    log = write_log(tmp_path / "room.mcap", "mcap-ros2", room_messages(0.0, 17.0, pillar=True))
+    out, out2 = tmp_path / "out", tmp_path / "out2"
+    assert run(["replay", str(log), "-o", str(out), "-q"]).exit_code == 0
+    short = write_log(tmp_path / "short.mcap", "mcap-ros2", room_messages(17.0, 2.0, pillar=True))
+    r = run(["replay", str(short), "-o", str(out2), "-q", "--resume", str(out / "snapshots/long_term_final.ot")])
+    assert r.exit_code == 0, r.output
+    assert occupied_cells(out2 / "map.yaml") == occupied_cells(out / "map.yaml")
+
+
+# ------------------------------------------------------------------------------ bad input
+
+
+def test_missing_path(tmp_path):
+    r = run(["replay", str(tmp_path / "nope.mcap"), "-o", str(tmp_path / "o")])
+    assert_one_line_error(r, "nope.mcap")
+
+
+def test_empty_file(tmp_path):
+    p = tmp_path / "empty.bag"
+    p.write_bytes(b"")
+    assert_one_line_error(run(["replay", str(p), "-o", str(tmp_path / "o")]), "empty.bag")
+
+
+def test_not_a_log(tmp_path):
+    p = tmp_path / "notes.mcap"
+    p.write_text("these are my notes, not a log\n" * 20)
+    assert_one_line_error(run(["replay", str(p), "-o", str(tmp_path / "o")]), "notes.mcap")
+
+
+def test_truncated_log_fails_unless_allowed(tmp_path):
+    log = write_log(tmp_path / "cut.mcap", "mcap-ros2", room_messages(0.0, 17.0, True), chunk_size=20_000)
+    truncate(log, 0.6)
+    out = tmp_path / "o"
+    assert_one_line_error(run(["replay", str(log), "-o", str(out), "-q"]), "cut.mcap", "--allow-truncated")
+    assert not (out / "map.yaml").exists() and no_temp_files(tmp_path)
+    r = run(["replay", str(log), "-o", str(out), "-q", "--allow-truncated"])
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    assert report["stopped_at"] and "cut.mcap" in report["stopped_at"]
+    assert 0 < report["frames_used"]["/scan"] < 85
+
+
+def test_no_usable_topic_lists_what_is_there(tmp_path):
+    log = write_log(tmp_path / "chat.mcap", "mcap-ros2",
+                    [string("/chatter", T0, "hello"), tf(T0, [("odom", "base_link")])])  # fmt: skip
+    assert_one_line_error(run(["replay", str(log), "-o", str(tmp_path / "o")]), "/chatter")
+
+
+def test_unsupported_depth_encoding(tmp_path):
+    msgs = [camera_info("/camera/depth/camera_info", T0, width=4, height=3, fx=2, fy=2, cx=2, cy=1.5),
+            image("/camera/depth/image_raw", T0 + 1, np.zeros((3, 4, 3), np.uint8), encoding="rgb8"),
+            tf(T0, [("odom", "base_link")])]  # fmt: skip
+    log = write_log(tmp_path / "rgb.mcap", "mcap-ros2", msgs)
+    assert_one_line_error(run(["replay", str(log), "-o", str(tmp_path / "o")]), "rgb8", "/camera/depth/image_raw")
+
+
+def test_depth_without_camera_info(tmp_path):
+    msgs = [image("/camera/depth/image_raw", T0 + 1, np.ones((3, 4), np.uint16) * 1000, encoding="16UC1"),
+            tf(T0, [("odom", "base_link")])]  # fmt: skip
+    log = write_log(tmp_path / "noinfo.mcap", "mcap-ros2", msgs)
+    assert_one_line_error(run(["replay", str(log), "-o", str(tmp_path / "o")]), "CameraInfo")
+
+
+def test_scan_whose_ranges_do_not_match_its_angles(tmp_path):
+    bad = scan("/scan", T0, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1, angle_max=1.0)
+    log = write_log(tmp_path / "bad.mcap", "mcap-ros2", [tf(T0, [("odom", "laser")]), bad])
+    assert_one_line_error(run(["replay", str(log), "-o", str(tmp_path / "o")]), "/scan")
+
+
+def test_debug_shows_the_traceback(tmp_path):
+    r = CliRunner().invoke(cli, ["--debug", "replay", str(tmp_path / "nope.mcap")])
+    assert r.exit_code != 0 and r.exception is not None
+
+
+def test_dump_config_and_config_file_round_trip(tmp_path):
+    r = run(["replay", "--dump-config", "--tick", "0.1", "--set", "map.layers.lt_fall_s=5"])
+    assert r.exit_code == 0
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(r.output)
+    r2 = run(["replay", "--dump-config", "--config", str(cfg)])
+    assert r2.output == r.output
+    assert "tick: 0.1" in r.output and "lt_fall_s: 5.0" in r.output
+    r3 = run(["replay", "--dump-config", "--set", "map.layers.nope=1"])
+    assert_one_line_error(r3, "map.layers.nope")
