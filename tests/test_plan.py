@@ -140,6 +140,29 @@ def test_matches_dijkstra_on_random_maps():
             assert res is not None and res.length_cells == pytest.approx(ref, abs=1e-9)
 
 
+def test_long_searches_reachable_and_unreachable():
+    # 400 x 400: long enough that A* runs its one-off connectivity check (after 65536
+    # expansions) before finishing.
+    # Reachable: a wall on col 200, rows 0..398, open only at row 399; (0, 0) -> (0, 399):
+    # to (399, 199) [199 diagonal + 200 straight], two steps along row 399 to col 201, then to
+    # (0, 399) [198 diagonal + 201 straight]: 397 sqrt(2) + 403.
+    b = np.zeros((400, 400), bool)
+    b[0:399, 200] = True
+    res = plan_path(b, (0, 0), (0, 399))
+    assert res.expanded > 65536
+    assert res.length_cells == pytest.approx(397 * S2 + 403, abs=1e-9)
+    # Unreachable: the goal is enclosed by a ring; the start's side is large
+    b = np.zeros((400, 400), bool)
+    b[300, 300:311] = b[310, 300:311] = b[300:311, 300] = b[300:311, 310] = True
+    assert plan_path(b, (0, 0), (305, 305)) is None
+    # ... and the start is enclosed instead
+    assert plan_path(b, (305, 305), (0, 0)) is None
+    # a ring closed only at a corner-touching diagonal is still closed (no corner cutting)
+    b[310, 310] = False
+    b[311, 311] = True
+    assert plan_path(b, (0, 0), (305, 305)) is None
+
+
 def test_blocked_endpoints_and_bounds():
     b = np.zeros((5, 5), bool)
     b[2, 2] = True

@@ -105,11 +105,59 @@ def _disk_dilate(rowd, r2, ri):
 
 
 @njit(cache=True)
+def _connected(free, w_pad, start, goal):
+    # Are start and goal in one 4-connected component of ``free`` (flat, padded with a blocked
+    # border)? 8-connected moves without corner cutting connect exactly the same cells. Two
+    # breadth-first floods, one from each end, advance in turn; the answer is known when they
+    # meet (True) or when either runs out of cells (False), so an enclosed start or goal costs
+    # only its own small region. Each cell is queued at most once: the start's queue grows up
+    # from 0 and the goal's down from the end of one shared array.
+    n = free.size
+    mark = np.zeros(n, np.uint8)
+    queue = np.empty(n, np.int64)
+    offs = np.array([-w_pad, w_pad, -1, 1])
+    mark[start] = 1
+    mark[goal] = 2
+    queue[0] = start
+    queue[n - 1] = goal
+    a_head, a_tail = 0, 1  # queue[a_head:a_tail]
+    b_head, b_tail = n - 1, n - 2  # queue[b_tail+1 : b_head+1], taken from b_head down
+    while True:
+        if a_head == a_tail or b_head == b_tail:
+            return False
+        node = queue[a_head]
+        a_head += 1
+        for k in range(4):
+            nb = node + offs[k]
+            if free[nb]:
+                m = mark[nb]
+                if m == 2:
+                    return True
+                if m == 0:
+                    mark[nb] = 1
+                    queue[a_tail] = nb
+                    a_tail += 1
+        node = queue[b_head]
+        b_head -= 1
+        for k in range(4):
+            nb = node + offs[k]
+            if free[nb]:
+                m = mark[nb]
+                if m == 1:
+                    return True
+                if m == 0:
+                    mark[nb] = 2
+                    queue[b_tail] = nb
+                    b_tail -= 1
+
+
+@njit(cache=True)
 def _astar(blocked, sr, sc, gr, gc):
     # blocked: uint8 (H, W). Returns (found, length, expanded, path (K, 2) int64).
     # The grid is copied into a flat array with a one-cell blocked border (no bounds checks);
     # the open list is an indexed binary heap (decrease-key, no duplicates) keyed by
-    # (f, h): among equal f the node nearer the goal first.
+    # (f, h): among equal f the node nearer the goal first. ``expanded`` counts A*'s
+    # expansions only (not the cells of the connectivity check).
     h, w = blocked.shape
     W = w + 2
     H = h + 2
@@ -144,6 +192,9 @@ def _astar(blocked, sr, sc, gr, gc):
     size = 1
     expanded = 0
     found = False
+    # a long search may be one that cannot succeed: then check connectivity once (cheap
+    # flood fill) instead of expanding every reachable cell before giving up
+    check_at = max(1 << 16, n // 16)
     while size > 0:
         node = hn[0]
         pos[node] = -2
@@ -179,6 +230,8 @@ def _astar(blocked, sr, sc, gr, gc):
         expanded += 1
         if node == goal:
             found = True
+            break
+        if expanded == check_at and not _connected(free, W, start, goal):
             break
         gnode = g[node]
         for k in range(8):
