@@ -83,6 +83,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
 @click.option(
     "--tolerance",
     type=click.IntRange(min=0),
+    metavar="N",
     default=0,
     show_default=True,
     help="Ignore an added (removed) cell within N cells (Euclidean, centre to centre) of a cell "
@@ -93,7 +94,9 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     is_flag=True,
     help="Allow maps of different resolutions: resample to the finer one (nearest cell centre).",
 )
-@click.option("--png", "png", type=click.Path(path_type=Path), help="Write an overlay image to FILE.")
+@click.option(
+    "--png", "png", type=click.Path(path_type=Path), metavar="FILE", help="Write an overlay image to FILE."
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 @click.option(
     "--3d",
@@ -105,6 +108,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     "--z-band",
     nargs=2,
     type=float,
+    metavar="LO HI",
     default=(0.05, 1.5),
     show_default=True,
     help="Height band [m] over which .ot snapshots are projected to 2D.",

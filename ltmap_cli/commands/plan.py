@@ -41,7 +41,9 @@ class PointType(click.ParamType):
     help="Robot radius [m]: a cell is blocked when an occupied cell's centre is within it.",
 )
 @click.option("--allow-unknown", is_flag=True, help="Let the path cross unknown cells.")
-@click.option("--png", "png", type=click.Path(path_type=Path), help="Draw the map and the path to FILE.")
+@click.option(
+    "--png", "png", type=click.Path(path_type=Path), metavar="FILE", help="Draw the map and the path to FILE."
+)
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON (with the path).")
 def plan(
     map_path: Path,
