@@ -141,7 +141,8 @@ def build_static(
     g = layer.grid
     extra = []
     if stats.furniture:
-        extra.append(f"{stats.furniture} furniture shapes ({stats.furniture_mode})")
+        extra.append(f"{stats.furniture} furniture shapes " + {
+            "none": "left out (--furniture none)", "static": "in S", "long-term": "seeding LT"}[stats.furniture_mode])
     if stats.ignored_shapes:
         extra.append(f"{stats.ignored_shapes} shapes outside the named layers ignored")
     pgm = map_file_paths(yaml_path)[1]

@@ -30,6 +30,7 @@ from .rasterize import Lattice, lines_to_segments, outline_lines, polygon_mask, 
 from .svgplan import Plan, PlanShape
 
 OUTLINE_CLOSE_M = 1.0
+GRID_M = 1e-6  # precision of the geometry unions (m)
 BYTES_PER_CELL = 16  # grid int8 + height and seed float32 + masks and scanline work arrays
 DEFAULT_MAX_CELLS = 200_000_000
 
@@ -74,7 +75,8 @@ def shapes_mask(shapes: list[PlanShape], lat: Lattice, thin_rule: bool = True):
     import shapely
 
     regions = [s.region for s in shapes if s.region is not None and not s.region.is_empty]
-    region = shapely.union_all(regions) if regions else None
+    # snapped to 1 um: coincident edges (a window inside its wall band) merge without slivers
+    region = shapely.union_all(regions, grid_size=GRID_M) if regions else None
     mask = polygon_mask(region, lat)
     if not thin_rule:
         return mask, region
