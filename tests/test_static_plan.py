@@ -241,7 +241,8 @@ def test_hairline_thinner_than_a_cell_is_an_unbroken_line(tmp_path):
 def test_zero_width_and_unset_strokes_get_the_wall_thickness(tmp_path):
     # band y 0.96..1.06 holds the centres 0.975, 1.025: rows 19, 20
     for stroke in ('stroke="#000" stroke-width="0"', 'stroke="#000"', "",
-                   'style="stroke:#000;stroke-width:1;vector-effect:non-scaling-stroke"'):
+                   'style="stroke:#000;stroke-width:1;vector-effect:non-scaling-stroke"',
+                   'style="stroke:#000;stroke-width:30;-inkscape-stroke:hairline"'):
         body = f'<line x1="510" y1="1990" x2="3490" y2="1990" {stroke}/>'
         layer, _ = build(write_svg(tmp_path, body))
         rows = np.nonzero(walls_of(layer).any(axis=1))[0]

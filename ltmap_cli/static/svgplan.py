@@ -89,7 +89,7 @@ def _describe_xml(el, counters: dict[str, int]) -> str:
 
 
 def _parse_length(text: str | None, where: str, source: str, units: set[str] | dict) -> tuple[float, str] | None:
-    if text is None:
+    if text is None or text.strip().lower() in ("auto", "inherit", "initial", ""):
         return None
     m = _LENGTH_RE.match(text)
     if not m:
