@@ -1,82 +1,120 @@
-import time
+"""Find map -> odom for the comprobo22 log against its published map (docs/real_logs.md).
+
+    python bench/align_comprobo.py [--real-logs ../shared/real_logs]
+
+1. Replay the log without a static map and take the occupied columns of the sensor map O.
+2. For every yaw in 1 degree steps, rotate them and find the best translation by FFT
+   cross-correlation with the published map's occupied cells (dilated by one cell).
+3. Refine locally (0.5, 0.2, 0.1 degrees; 0.04, 0.02, 0.01 m), maximizing the fraction of our
+   columns within 2 cells of a published wall. Print the result and how the fraction falls off.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import tempfile
+from pathlib import Path
 
 import numpy as np
+from click.testing import CliRunner
 
+from ltmap_cli.cli import cli
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import LayeredMap
 from ltmap_cli.io.mapfile import read_map_yaml
 from ltmap_cli.io.state import read_state
 
-arrays,_ = read_state('/tmp/cmp/snapshots/state_final.npz')
-m = LayeredMap(MapConfig()); m.load_state_arrays(arrays)
-k = m.occupied_keys("O")
-pts = (k[:, :2] + 0.5) * 0.05
-pts = np.unique(np.round(pts, 3), axis=0)
-print("our occupied columns", len(pts))
-g = read_map_yaml('/work/shared/real_logs/comprobo22_maps/mac_1st_floor_final.yaml')
-print(g.data.shape, g.resolution, g.origin)
-res = 0.06
-occ = g.data == 100
-rows, cols = np.nonzero(occ)
-mp = np.stack([g.origin[0] + (cols + 0.5) * g.resolution, g.origin[1] + (rows + 0.5) * g.resolution], 1)
-x0, y0 = mp.min(0) - 3; x1, y1 = mp.max(0) + 3
-W = int((x1 - x0) / res) + 1; H = int((y1 - y0) / res) + 1
-M = np.zeros((H, W)); ii = ((mp - [x0, y0]) / res).astype(int); M[ii[:, 1], ii[:, 0]] = 1
-# dilate by 1 cell
-D = M.copy()
-for dy in (-1, 0, 1):
-    for dx in (-1, 0, 1):
-        D = np.maximum(D, np.roll(np.roll(M, dy, 0), dx, 1))
-FD = np.fft.rfft2(D)
-best = (-1,)
-t = time.time()
-for yaw_deg in np.arange(0, 360, 1.0):
-    a = np.radians(yaw_deg); c, s = np.cos(a), np.sin(a)
-    q = pts @ np.array([[c, s], [-s, c]])
-    q = q - q.min(0)
-    P = np.zeros((H, W)); jj = (q / res).astype(int)
-    if jj[:, 0].max() >= W or jj[:, 1].max() >= H: continue
-    P[jj[:, 1], jj[:, 0]] = 1
-    corr = np.fft.irfft2(FD * np.conj(np.fft.rfft2(P)), s=D.shape)
-    idx = np.unravel_index(np.argmax(corr), corr.shape)
-    if corr[idx] > best[0]:
-        best = (corr[idx], yaw_deg, idx, q.min(0) if False else None, pts @ np.array([[c, s], [-s, c]]))
-print("coarse", best[0], best[1], time.time() - t)
-score, yaw_deg, (dy, dx), _, rot = best
-# translation: map point = rot - rot.min + shift*res + [x0,y0]
-tx = x0 + dx * res - rot.min(0)[0]; ty = y0 + dy * res - rot.min(0)[1]
-print("yaw", yaw_deg, "t", tx, ty, "fraction", score / len(pts))
-# refine: small grid search maximizing fraction of points within 1 map cell (0.06 dilated) at finer res
-from itertools import product
+GRID = 0.06  # m, correlation grid
 
 
-def frac(yaw, tx, ty):
-    a = np.radians(yaw); c, s = np.cos(a), np.sin(a)
-    q = pts @ np.array([[c, s], [-s, c]]) + [tx, ty]
-    j = np.floor((q - [g.origin[0], g.origin[1]]) / g.resolution).astype(int)
-    ok = (j[:, 0] >= 0) & (j[:, 0] < g.data.shape[1]) & (j[:, 1] >= 0) & (j[:, 1] < g.data.shape[0])
-    Dm = occ.copy()
-    return j, ok
-occD = occ.copy()
-for dy in (-2,-1, 0, 1,2):
-    for dx in (-2,-1, 0, 1,2):
-        occD |= np.roll(np.roll(occ, dy, 0), dx, 1)
-def score2(yaw, tx, ty):
-    a = np.radians(yaw); c, s = np.cos(a), np.sin(a)
-    q = pts @ np.array([[c, s], [-s, c]]) + [tx, ty]
-    j = np.floor((q - [g.origin[0], g.origin[1]]) / g.resolution).astype(int)
-    ok = (j[:, 0] >= 0) & (j[:, 0] < g.data.shape[1]) & (j[:, 1] >= 0) & (j[:, 1] < g.data.shape[0])
-    return occD[j[ok, 1], j[ok, 0]].sum() / len(pts)
-b = (score2(yaw_deg, tx, ty), yaw_deg, tx, ty)
-for step_a, step_t in ((0.5, 0.04), (0.2, 0.02), (0.1, 0.01)):
-    improved = True
-    while improved:
-        improved = False
-        for da, ddx, ddy in product((-step_a, 0, step_a), (-step_t, 0, step_t), (-step_t, 0, step_t)):
-            sc = score2(b[1] + da, b[2] + ddx, b[3] + ddy)
-            if sc > b[0] + 1e-9:
-                b = (sc, b[1] + da, b[2] + ddx, b[3] + ddy); improved = True
-print("refined fraction within 2 cells (0.06 m):", b)
-for dyaw in (2, 5, 10, 30):
-    print("wrong by", dyaw, "deg:", score2(b[1] + dyaw, b[2], b[3]))
-print("shifted 0.3 m:", score2(b[1], b[2] + 0.3, b[3]))
+def rotate(pts: np.ndarray, yaw_deg: float) -> np.ndarray:
+    a = np.radians(yaw_deg)
+    c, s = np.cos(a), np.sin(a)
+    return pts @ np.array([[c, s], [-s, c]])
+
+
+def dilate(mask: np.ndarray, n: int) -> np.ndarray:
+    out = mask.copy()
+    for dy in range(-n, n + 1):
+        for dx in range(-n, n + 1):
+            out |= np.roll(np.roll(mask, dy, 0), dx, 1)
+    return out
+
+
+def our_columns(log: Path) -> np.ndarray:
+    with tempfile.TemporaryDirectory() as tmp:
+        r = CliRunner().invoke(cli, ["replay", str(log), "-o", tmp, "-q"], catch_exceptions=False)
+        assert r.exit_code == 0, r.output
+        arrays, _ = read_state(Path(tmp) / "snapshots" / "state_final.npz")
+    m = LayeredMap(MapConfig())
+    m.load_state_arrays(arrays)
+    keys = m.occupied_keys("O")
+    return np.unique((keys[:, :2] + 0.5) * 0.05, axis=0)
+
+
+def coarse(pts: np.ndarray, wall_xy: np.ndarray) -> tuple[float, float, float]:
+    lo = wall_xy.min(0) - 3.0
+    hi = wall_xy.max(0) + 3.0
+    W, H = int((hi[0] - lo[0]) / GRID) + 1, int((hi[1] - lo[1]) / GRID) + 1
+    walls = np.zeros((H, W), dtype=bool)
+    ij = ((wall_xy - lo) / GRID).astype(int)
+    walls[ij[:, 1], ij[:, 0]] = True
+    spectrum = np.fft.rfft2(dilate(walls, 1).astype(float))
+    best = (-1.0, 0.0, 0.0, 0.0)
+    for yaw in np.arange(0.0, 360.0, 1.0):
+        q = rotate(pts, yaw)
+        qmin = q.min(0)
+        jj = ((q - qmin) / GRID).astype(int)
+        if jj[:, 0].max() >= W or jj[:, 1].max() >= H:
+            continue
+        ours = np.zeros((H, W))
+        ours[jj[:, 1], jj[:, 0]] = 1.0
+        corr = np.fft.irfft2(spectrum * np.conj(np.fft.rfft2(ours)), s=walls.shape)
+        dy, dx = np.unravel_index(np.argmax(corr), corr.shape)
+        if corr[dy, dx] > best[0]:
+            best = (float(corr[dy, dx]), float(yaw), lo[0] + dx * GRID - qmin[0], lo[1] + dy * GRID - qmin[1])
+    return best[1], best[2], best[3]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--real-logs", type=Path, default=Path(__file__).resolve().parents[2] / "shared" / "real_logs")
+    args = ap.parse_args()
+    log = args.real_logs / "comprobo22_macfirst_floor_take_2"
+    grid = read_map_yaml(args.real_logs / "comprobo22_maps" / "mac_1st_floor_final.yaml")
+    pts = our_columns(log)
+    occ = grid.data == 100
+    rows, cols = np.nonzero(occ)
+    wall_xy = np.stack([grid.origin[0] + (cols + 0.5) * grid.resolution,
+                        grid.origin[1] + (rows + 0.5) * grid.resolution], axis=1)  # fmt: skip
+    near = dilate(occ, 2)
+
+    def on_walls(yaw: float, tx: float, ty: float) -> float:
+        q = rotate(pts, yaw) + [tx, ty]
+        j = np.floor((q - np.array(grid.origin[:2])) / grid.resolution).astype(int)
+        ok = (j[:, 0] >= 0) & (j[:, 0] < occ.shape[1]) & (j[:, 1] >= 0) & (j[:, 1] < occ.shape[0])
+        return float(near[j[ok, 1], j[ok, 0]].sum()) / len(pts)
+
+    yaw, tx, ty = coarse(pts, wall_xy)
+    best = (on_walls(yaw, tx, ty), yaw, tx, ty)
+    for step_a, step_t in ((0.5, 0.04), (0.2, 0.02), (0.1, 0.01)):
+        improved = True
+        while improved:
+            improved = False
+            for da, dx, dy in itertools.product((-step_a, 0, step_a), (-step_t, 0, step_t), (-step_t, 0, step_t)):
+                cand = (best[1] + da, best[2] + dx, best[3] + dy)
+                score = on_walls(*cand)
+                if score > best[0] + 1e-9:
+                    best = (score, *cand)
+                    improved = True
+    score, yaw, tx, ty = best
+    print(f"{len(pts)} occupied columns; map -> odom: x {tx:.3f} m, y {ty:.3f} m, yaw {yaw:.1f} deg "
+          f"({np.radians(yaw):.5f} rad): {100 * score:.0f} % within 2 cells of a published wall")  # fmt: skip
+    for dyaw in (2, 5, 10):
+        print(f"  yaw off by {dyaw} deg: {100 * on_walls(yaw + dyaw, tx, ty):.0f} %")
+    print(f"  shifted 0.3 m: {100 * on_walls(yaw, tx + 0.3, ty):.0f} %")
+
+
+if __name__ == "__main__":
+    main()
