@@ -195,13 +195,14 @@ def ltmap_config(resolution: float) -> MapConfig:
     return cfg
 
 
-def run_ltmap(frames: list[Frame], resolution: float, max_range: float) -> tuple[float, np.ndarray]:
-    """(seconds in total, occupied keys (M, 3))."""
+def run_ltmap(frames: list[Frame], resolution: float, max_range: float, dedupe: bool = False) -> tuple[float, np.ndarray]:
+    """(seconds in total, occupied keys (M, 3)). ``dedupe``: one ray per end voxel, as replay
+    integrates depth images and clouds (``map.sensor.dedupe_dense``)."""
     m = LayeredMap(ltmap_config(resolution))
     total = 0.0
     for fr in frames:
         t0 = time.perf_counter()
-        m.integrate(fr.origin, fr.points, None, max_range)
+        m.integrate(fr.origin, fr.points, None, max_range, dedupe=dedupe)
         total += time.perf_counter() - t0
     return total, m.occupied_keys("O")
 
@@ -449,9 +450,13 @@ def main(argv: list[str] | None = None) -> int:
         for res in (0.05, 0.10):
             for max_range in (4.0, 8.0):
                 lt_times, oct_times, oct_keys = [], {mode: [] for mode in OCTOMAP_MODES}, {}
+                dedupe = sensor == "depth"  # as replay integrates dense sensors
+                exact_times = []
                 for rnd in range(rounds):  # interleaved rounds, so both see the same machine load
-                    t, lt_keys = run_ltmap(frames, res, max_range)
+                    t, lt_keys = run_ltmap(frames, res, max_range, dedupe=dedupe)
                     lt_times.append(t)
+                    t, exact_keys = run_ltmap(frames, res, max_range) if dedupe else (t, lt_keys)
+                    exact_times.append(t)
                     for mode in OCTOMAP_MODES:
                         t, tree = run_octomap(frames, res, max_range, mode)
                         oct_times[mode].append(t)
@@ -468,6 +473,8 @@ def main(argv: list[str] | None = None) -> int:
                     "frames": len(frames),
                     "rays": n_rays,
                     "ltmap": lt_ms,
+                    "ltmap_exact": statistics.median(exact_times) / len(frames) * 1e3,
+                    "iou_exact_default": iou(exact_keys, oct_keys["default"]),
                     **{f"oct_{k}": v for k, v in oct_ms.items()},
                     "fast_mode": fast,
                     "ratio": oct_ms[fast] / lt_ms,
@@ -510,7 +517,7 @@ def main(argv: list[str] | None = None) -> int:
         f"(load average before / after: {load0} / {load1}). ratio = OctoMap's faster mode / ltmap.\n"
     )
     head = (
-        "| sensor | res (m) | max range (m) | rays/frame | ltmap | OctoMap default | OctoMap lazy "
+        "| sensor | res (m) | max range (m) | rays/frame | ltmap | ltmap one ray per pixel | OctoMap default | OctoMap lazy "
         "| OctoMap disc | OctoMap disc+lazy | faster mode | ratio | IoU vs default | IoU vs disc "
         "| occupied ltmap / OctoMap |"
     )
@@ -518,7 +525,7 @@ def main(argv: list[str] | None = None) -> int:
     print("|" + "---|" * head.count(" | ") + "---|")
     for r in rows:
         print(
-            f"| {r['sensor']} | {r['res']:.2f} | {r['max_range']:.0f} | {r['rays']} | {r['ltmap']:.1f} "
+            f"| {r['sensor']} | {r['res']:.2f} | {r['max_range']:.0f} | {r['rays']} | {r['ltmap']:.1f} | {r['ltmap_exact']:.1f} "
             f"| {r['oct_default']:.1f} | {r['oct_lazy']:.1f} | {r['oct_disc']:.1f} | {r['oct_disc+lazy']:.1f} "
             f"| {r['fast_mode']} | {r['ratio']:.2f}x | {r['iou_default']:.4f} | {r['iou_disc']:.4f} "
             f"| {r['occ_ltmap']} / {r['occ_octomap']} |"
