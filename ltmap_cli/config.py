@@ -30,6 +30,8 @@ class ReplayConfig:
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
+    event_window_s: float = 5.0  # voxels crossing LT's threshold this close in time ...
+    event_link_m: float = 0.3  # ... and this close in space (chained) are one event
 
 
 @dataclass

@@ -64,6 +64,9 @@ class _Counts:
     skipped_by_topic: Counter = field(default_factory=Counter)
     no_footprint: int = 0
     rays: int = 0
+    frame_ms: dict = field(default_factory=dict)  # topic -> [wall ms per frame]
+    stamps: dict = field(default_factory=dict)  # topic -> [header stamps ns] (frame periods)
+    tick_ms: list = field(default_factory=list)
 
 
 def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
@@ -193,6 +196,8 @@ class Replay:
         self._snapshot(None)
         wall = time.perf_counter() - t_wall0
         outputs = self._write_maps(out)
+        events, processing = self._measurements(out)
+        outputs["events"] = str(out / "events.csv")
         report = {
             "logs": [str(p) for p in req.logs],
             "fixed_frame": self.fixed_frame,
@@ -224,6 +229,8 @@ class Replay:
             "static": static_info,
             "resume": resume_info,
             "snapshots": self.snapshots,
+            "events": events,
+            "processing_latency_ms": processing,
             "outputs": outputs,
         }
         write_text_atomic(out / "config.yaml", dump_config(cfg))
@@ -260,7 +267,9 @@ class Replay:
             self._tick_end = stamp + self._tick_ns
             return
         while stamp >= self._tick_end:
+            t_tick = time.perf_counter()
             lmap.end_tick()
+            self.counts.tick_ms.append((time.perf_counter() - t_tick) * 1e3)
             if self._tick_end - self._t0 >= self._next_snapshot:
                 self._snapshot((self._tick_end - self._t0) / NS)
                 self._next_snapshot += self._snap_ns
@@ -275,6 +284,7 @@ class Replay:
         self.snapshots.append({"log_time_s": t_s, **paths})
 
     def _process(self, topic: str, item) -> None:
+        t_start = time.perf_counter()
         cfg = self.cfg
         if self.fixed_frame is None:
             self._choose_frames()
@@ -312,10 +322,61 @@ class Replay:
             return
         world = transform_points(T, pts)
         r = self.lmap.integrate(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
-        self.counts.used[topic] += 1
-        self.counts.rays += r.rays
+        c = self.counts
+        c.used[topic] += 1
+        c.rays += r.rays
+        c.frame_ms.setdefault(topic, []).append((time.perf_counter() - t_start) * 1e3)
+        c.stamps.setdefault(topic, []).append(item.stamp_ns)
 
     # ------------------------------------------------------------------------------------
+    def _clock(self):
+        from .analysis.events import TickClock
+
+        t0 = (self._t0 - self.log_start) / NS if self._t0 is not None else 0.0
+        return TickClock(t0, self.cfg.map.layers.tick)
+
+    def _measurements(self, out: Path) -> tuple[dict, dict]:
+        """events.csv and the summaries of report.json: change events with their latencies, and
+        wall-clock processing time per frame (by topic) and per tick against the frame period."""
+        from .analysis.events import event_history, events_csv, find_events, percentiles
+
+        lmap, clock = self.lmap, self._clock()
+        events, members = find_events(
+            lmap.events.transitions, lmap.D.block_coords[: lmap.D.n_blocks], lmap.resolution, clock,
+            window_s=self.cfg.replay.event_window_s, link_m=self.cfg.replay.event_link_m,
+        )  # fmt: skip
+        write_text_atomic(out / "events.csv", events_csv(events))
+        self.events = events
+        hist_i, hist_v = lmap.events.history
+        self.histories = {
+            e["id"]: event_history(hist_i, hist_v, members[e["id"]], clock,
+                                   t_from_s=(e["t_start_s"] or e["t_in_map_s"]) - 5.0)  # fmt: skip
+            for e in events
+        }
+        lat = {"add": [e["latency_s"] for e in events if e["kind"] == "appear" and e["latency_s"] is not None],
+               "remove": [e["latency_s"] for e in events if e["kind"] == "disappear" and e["latency_s"] is not None]}  # fmt: skip
+        self.latencies = lat
+        summary = {
+            "count": len(events),
+            "appear": sum(e["kind"] == "appear" for e in events),
+            "disappear": sum(e["kind"] == "disappear" for e in events),
+            "add_latency_s": percentiles(lat["add"]),
+            "remove_latency_s": percentiles(lat["remove"]),
+            "list": events,
+        }
+        processing = {}
+        self.periods_ms = {}
+        for topic, ms in self.counts.frame_ms.items():
+            stamps = np.sort(np.asarray(self.counts.stamps[topic], dtype=np.int64))
+            period = float(np.median(np.diff(stamps)) / 1e6) if len(stamps) > 1 else None
+            self.periods_ms[topic] = period
+            processing[topic] = {**percentiles(ms), "frame_period_ms": period,
+                                 "keeps_up": (bool(np.percentile(ms, 95) < period) if period else None)}  # fmt: skip
+        tick_period = self.cfg.map.layers.tick * 1e3
+        processing["tick"] = {**percentiles(self.counts.tick_ms), "frame_period_ms": tick_period}
+        self.periods_ms["tick"] = tick_period
+        return summary, processing
+
     def _write_maps(self, out: Path) -> dict[str, str]:
         from .io.mapfile import GridMap, write_map
 

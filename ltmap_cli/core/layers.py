@@ -32,7 +32,13 @@ from .raycast import (
 )
 
 O_CHANNELS = {"logodds": (np.float32, 0.0), "stamp": (np.int32, 0)}
-D_CHANNELS = {"st": (np.float32, 0.0), "lt": (np.float32, 0.0), "last_obs": (np.int32, -1)}
+D_CHANNELS = {
+    "st": (np.float32, 0.0),
+    "lt": (np.float32, 0.0),
+    "last_obs": (np.int32, -1),  # last tick seen as an obstacle
+    "obst_since": (np.int32, -1),  # tick the current obstacle streak began (ST rose from 0)
+    "free_since": (np.int32, -1),  # tick the current seen-free streak began while LT > 0
+}
 SNAP_EPS = 1e-4  # ST / LT within this of 0 or 1 are snapped (float steps such as 0.2/15)
 NO_STATIC = -(1 << 30)
 
@@ -153,18 +159,41 @@ class StaticGrid:
         return out
 
 
+TR_APPEAR = 1  # transition kinds recorded by the tick kernel
+TR_DISAPPEAR = 2
+TICK_DONE = -1
+
+
+@njit(cache=True, inline="always")
+def _record_history(hist_i, hist_v, hist_meta, tick_index, vid, st_v, lt_v):
+    n = hist_meta[0]
+    hist_i[n, 0] = tick_index
+    hist_i[n, 1] = vid
+    hist_v[n, 0] = st_v
+    hist_v[n, 1] = lt_v
+    hist_meta[0] = n + 1
+
+
 @njit(cache=True)
 def _tick_kernel(
     tb_block, tb_off, n_tb, start,
     o_coords, logodds,
-    d_keys, d_vals, d_coords, d_meta, st, lt, last_obs,
+    d_keys, d_vals, d_coords, d_meta, st, lt, last_obs, obst_since, free_since,
     near, near_i0, near_j0, margin,
-    rise, fall, lt_fall, tick_index, counters,
+    rise, fall, lt_fall, occ_thr, k_lo, k_hi, tick_index, record_all,
+    tr, tr_meta, hist_i, hist_v, hist_meta, counters,
 ):  # fmt: skip
-    """Tick rules for the voxels observed in this tick. Returns the index to resume from when
-    the D pool is full, or n_tb when done. counters: [obstacles, seen free, LT entered, LT left]."""
+    """Tick rules for the voxels observed in this tick.
+
+    Returns TICK_DONE, or the index to resume from when the D pool or an event buffer is full
+    (nothing of that item was changed). counters: [obstacles, seen free, LT entered, LT left].
+    For voxels inside the z band [k_lo, k_hi] (what P shows), LT crossing ``occ_thr`` is recorded
+    in ``tr`` as (kind, D block, offset, tick, tick the streak began), and ST / LT values in the
+    history (every tick when ``record_all``, else at transitions)."""
     NH, NW = near.shape
     for t in range(start, n_tb):
+        if tr_meta[0] >= tr.shape[0] or hist_meta[0] >= hist_i.shape[0]:
+            return t
         b = tb_block[t]
         off = tb_off[t]
         lo = logodds[b, off]
@@ -173,6 +202,7 @@ def _tick_kernel(
         i = (np.int64(o_coords[b, 0]) << BLOCK_BITS) | ((off >> (2 * BLOCK_BITS)) & BLOCK_MASK)
         j = (np.int64(o_coords[b, 1]) << BLOCK_BITS) | ((off >> BLOCK_BITS) & BLOCK_MASK)
         k = (np.int64(o_coords[b, 2]) << BLOCK_BITS) | (off & BLOCK_MASK)
+        in_band = k_lo <= k <= k_hi
         if lo > 0.0:
             r = j - near_j0
             c = i - near_i0
@@ -183,45 +213,120 @@ def _tick_kernel(
                 return t
             doff = voxel_offset(i, j, k)
             counters[0] += 1
-            v = st[db, doff] + rise
+            old = st[db, doff]
+            if old == 0.0:
+                obst_since[db, doff] = tick_index
+            free_since[db, doff] = -1
+            v = old + rise
             last_obs[db, doff] = tick_index
+            entered = False
             if v >= 1.0 - 1e-4:
                 v = 1.0
                 if lt[db, doff] < 1.0:
-                    if lt[db, doff] < 0.65:
+                    if lt[db, doff] < occ_thr:
                         counters[2] += 1
+                        entered = in_band
                     lt[db, doff] = 1.0
             st[db, doff] = v
+            if entered:
+                n = tr_meta[0]
+                tr[n, 0] = TR_APPEAR
+                tr[n, 1] = db
+                tr[n, 2] = doff
+                tr[n, 3] = tick_index
+                tr[n, 4] = obst_since[db, doff]
+                tr_meta[0] = n + 1
+            if in_band and (record_all or entered):
+                _record_history(hist_i, hist_v, hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
         else:
             counters[1] += 1
             db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
             if db < 0:
                 continue
             doff = voxel_offset(i, j, k)
-            v = st[db, doff] - fall
+            old_st = st[db, doff]
+            w = lt[db, doff]
+            if old_st == 0.0 and w == 0.0:
+                continue  # nothing to fall
+            if w > 0.0 and free_since[db, doff] < 0:
+                free_since[db, doff] = tick_index
+            v = old_st - fall
             if v <= 1e-4:
                 v = 0.0
+                obst_since[db, doff] = -1
             st[db, doff] = v
-            w = lt[db, doff]
+            left = False
             if w > 0.0 and v == 0.0:
                 w2 = w - lt_fall
                 if w2 <= 1e-4:
                     w2 = 0.0
-                if w >= 0.65 > w2:
+                if w >= occ_thr > w2:
                     counters[3] += 1
+                    left = in_band
                 lt[db, doff] = w2
-    return n_tb
+            if left:
+                n = tr_meta[0]
+                tr[n, 0] = TR_DISAPPEAR
+                tr[n, 1] = db
+                tr[n, 2] = doff
+                tr[n, 3] = tick_index
+                tr[n, 4] = free_since[db, doff]
+                tr_meta[0] = n + 1
+            if in_band and (record_all or left):
+                _record_history(hist_i, hist_v, hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
+    return TICK_DONE
 
 
 @njit(cache=True)
-def _forget_kernel(n_blocks, st, last_obs, tick_index, forget_ticks):
+def _forget_kernel(n_blocks, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi,
+                   hist_i, hist_v, hist_meta):  # fmt: skip
+    """ST falls to 0 where no obstacle was seen for ``forget_ticks``. Returns the number forgotten,
+    or -1 when the history buffer must grow first (nothing changed)."""
     n = 0
     for b in range(n_blocks):
+        bz0 = np.int64(d_coords[b, 2]) * BLOCK
         for o in range(st.shape[1]):
             if st[b, o] > 0.0 and tick_index - last_obs[b, o] >= forget_ticks:
+                k = bz0 + (o & BLOCK_MASK)
+                if k_lo <= k <= k_hi:
+                    if hist_meta[0] >= hist_i.shape[0]:
+                        return -1
+                    _record_history(hist_i, hist_v, hist_meta, tick_index, b * 512 + o, 0.0, lt[b, o])
                 st[b, o] = 0.0
+                obst_since[b, o] = -1
                 n += 1
     return n
+
+
+class EventLog:
+    """What the tick kernel records for the measurements of SPEC 6 (plain growable arrays).
+
+    ``transitions`` rows: (kind TR_APPEAR / TR_DISAPPEAR, D block, offset, tick, tick the
+    obstacle / seen-free streak began); ``history_i`` rows (tick, D voxel id = block * 512 +
+    offset) with ``history_v`` (ST, LT) after that tick."""
+
+    def __init__(self):
+        self.tr = np.zeros((1024, 5), dtype=np.int32)
+        self.tr_meta = np.zeros(1, dtype=np.int64)
+        self.hist_i = np.zeros((1 << 16, 2), dtype=np.int32)
+        self.hist_v = np.zeros((1 << 16, 2), dtype=np.float32)
+        self.hist_meta = np.zeros(1, dtype=np.int64)
+
+    def grow(self) -> None:
+        if self.tr_meta[0] >= len(self.tr):
+            self.tr = np.concatenate([self.tr, np.zeros_like(self.tr)])
+        if self.hist_meta[0] >= len(self.hist_i):
+            self.hist_i = np.concatenate([self.hist_i, np.zeros_like(self.hist_i)])
+            self.hist_v = np.concatenate([self.hist_v, np.zeros_like(self.hist_v)])
+
+    @property
+    def transitions(self) -> np.ndarray:
+        return self.tr[: int(self.tr_meta[0])]
+
+    @property
+    def history(self) -> tuple[np.ndarray, np.ndarray]:
+        n = int(self.hist_meta[0])
+        return self.hist_i[:n], self.hist_v[:n]
 
 
 @dataclass
@@ -261,6 +366,8 @@ class LayeredMap:
         self._tb_meta = np.zeros(1, dtype=np.int64)
         self.static: StaticGrid | None = None
         self.set_static(static)
+        self.events = EventLog()
+        self.history_every = 5  # ticks between ST / LT history samples (0: transitions only)
 
     # -- static layer -------------------------------------------------------------------------
     def set_static(self, static: StaticGrid | None) -> None:
@@ -347,11 +454,17 @@ class LayeredMap:
     # -- tick ---------------------------------------------------------------------------------
     def end_tick(self) -> TickResult:
         """Apply the tick rules to the voxels observed since the last tick."""
+        from .projection import band_k_range
+
         lay = self.cfg.layers
         rise = lay.tick / lay.st_rise_s
         fall = lay.tick / lay.st_fall_s
         lt_fall = lay.tick / lay.lt_fall_s
         forget_ticks = max(1, int(round(lay.st_forget_s / lay.tick)))
+        pc = self.cfg.projection
+        k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, self.resolution)
+        record_all = self.history_every > 0 and self.tick_index % self.history_every == 0
+        ev = self.events
         n_tb = int(self._tb_meta[0])
         counters = np.zeros(4, dtype=np.int64)
         start = 0
@@ -361,15 +474,25 @@ class LayeredMap:
                 self._tb_block, self._tb_off, n_tb, start,
                 self.O.block_coords, self.O.data["logodds"],
                 d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"], d.data["last_obs"],
+                d.data["obst_since"], d.data["free_since"],
                 self._near, self._near_i0, self._near_j0, lay.static_margin_cells,
-                rise, fall, lt_fall, self.tick_index, counters,
+                rise, fall, lt_fall, pc.occupied_thresh, k_lo, k_hi, self.tick_index, record_all,
+                ev.tr, ev.tr_meta, ev.hist_i, ev.hist_v, ev.hist_meta, counters,
             )  # fmt: skip
-            if start >= n_tb:
+            if start == TICK_DONE:
                 break
-            self.D.grow()
-        forgotten = _forget_kernel(
-            self.D.n_blocks, self.D.data["st"], self.D.data["last_obs"], self.tick_index, forget_ticks
-        )
+            if self.D.n_blocks >= self.D.max_blocks:
+                self.D.grow()
+            ev.grow()
+        while True:
+            d = self.D
+            forgotten = _forget_kernel(
+                d.n_blocks, d.block_coords, d.data["st"], d.data["lt"], d.data["last_obs"], d.data["obst_since"],
+                self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v, ev.hist_meta,
+            )  # fmt: skip
+            if forgotten >= 0:
+                break
+            ev.grow()
         result = TickResult(
             tick_index=self.tick_index,
             observed=n_tb,
@@ -473,6 +596,7 @@ class LayeredMap:
 
 __all__ = [
     "BLOCK",
+    "EventLog",
     "FrameResult",
     "LayeredMap",
     "StaticGrid",

@@ -1,0 +1,206 @@
+"""Change events and their latencies (SPEC 6), from what the map core recorded during a replay.
+
+An event is a connected group of voxels (linked within ``link_m``, default 0.3 m, so that a
+wall sampled by a sparse 2D laser stays one group) inside the robot's z band that
+enter LT (``appear``: LT crosses the occupied threshold upwards, so P shows them occupied) or
+leave it (``disappear``: LT falls below it, so P shows them free), at ticks no more than
+``window_s`` apart (chained: voxels of a large object that enter over a longer time stay one event).
+
+Per voxel, the core recorded the tick of the crossing and the tick its streak began: the first
+tick it was an obstacle in O (appear) or the first tick it was seen free (disappear). A voxel's latency runs from the start of its streak's first
+tick to the end of the tick P shows the change: (crossing tick - streak start + 1) x tick, so an
+obstacle seen continuously from its first tick enters after exactly st_rise_s. An event's
+latency is the median over its voxels; min and max are kept too. Times are seconds of log time since the log's first message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+APPEAR, DISAPPEAR = 1, 2
+KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}
+
+CSV_COLUMNS = [
+    "id", "kind", "t_start_s", "t_in_map_s", "latency_s", "latency_min_s", "latency_max_s",
+    "planner_latency_s", "voxels", "cells", "centroid_x", "centroid_y", "centroid_z",
+    "min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
+]  # fmt: skip
+
+
+@dataclass
+class TickClock:
+    """Tick index -> log time: tick i spans [t0 + i * tick, t0 + (i + 1) * tick)."""
+
+    t0_s: float  # start of tick 0, in seconds since the log's first message
+    tick_s: float
+
+    def start(self, tick) -> np.ndarray:
+        return self.t0_s + np.asarray(tick, dtype=np.float64) * self.tick_s
+
+    def end(self, tick) -> np.ndarray:
+        return self.start(np.asarray(tick) + 1)
+
+
+def _voxel_keys(blocks: np.ndarray, offs: np.ndarray, block_coords: np.ndarray) -> np.ndarray:
+    local = np.stack([(offs >> 6) & 7, (offs >> 3) & 7, offs & 7], axis=1)
+    return block_coords[blocks].astype(np.int64) * 8 + local
+
+
+def _group(keys: np.ndarray, ticks: np.ndarray, window: int, link: int) -> np.ndarray:
+    """Union-find labels: transitions whose voxels lie within ``link`` voxels of each other
+    (Chebyshev) and whose ticks are within ``window`` share a label (chained). Voxels are bucketed
+    on a grid of ``link`` voxels so each is compared with its 27 neighbouring buckets only."""
+    n = len(keys)
+    parent = np.arange(n)
+
+    def find(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    size = max(1, link)
+    buckets: dict[tuple, list[int]] = {}
+    for idx, b in enumerate(map(tuple, (keys // size).tolist())):
+        buckets.setdefault(b, []).append(idx)
+    around = [(a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)]
+    for (bx, by, bz), idxs in buckets.items():
+        cand = [o for dx, dy, dz in around for o in buckets.get((bx + dx, by + dy, bz + dz), ())]
+        cand_keys = keys[cand]
+        cand_ticks = ticks[cand]
+        for idx in idxs:
+            close = (np.abs(cand_keys - keys[idx]).max(axis=1) <= link) & (np.abs(cand_ticks - ticks[idx]) <= window)
+            for other in np.asarray(cand)[close]:
+                ra, rb = find(idx), find(int(other))
+                if ra != rb:
+                    parent[max(ra, rb)] = min(ra, rb)
+    return np.array([find(i) for i in range(n)], dtype=np.int64)
+
+
+def find_events(
+    transitions: np.ndarray,
+    block_coords: np.ndarray,
+    resolution: float,
+    clock: TickClock,
+    window_s: float = 5.0,
+    link_m: float = 0.3,
+    min_voxels: int = 1,
+) -> tuple[list[dict], dict[int, np.ndarray]]:
+    """(events sorted by time, {event id: D voxel ids (block * 512 + offset)}).
+
+    ``transitions`` rows: (kind, D block, offset, tick, streak start tick) from
+    ``LayeredMap.events.transitions``; ``block_coords`` the D grid's block coordinates."""
+    tr = np.asarray(transitions, dtype=np.int64).reshape(-1, 5)
+    events: list[dict] = []
+    members: dict[int, np.ndarray] = {}
+    window = max(1, int(round(window_s / clock.tick_s)))
+    groups = []
+    for kind in (APPEAR, DISAPPEAR):
+        sel = tr[tr[:, 0] == kind]
+        if not len(sel):
+            continue
+        keys = _voxel_keys(sel[:, 1], sel[:, 2], block_coords)
+        labels = _group(keys, sel[:, 3], window, max(1, int(round(link_m / resolution))))
+        for lab in np.unique(labels):
+            m = labels == lab
+            if m.sum() >= min_voxels:
+                groups.append((kind, sel[m], keys[m]))
+    groups.sort(key=lambda g: (int(g[1][:, 3].min()), g[0]))
+    for eid, (kind, rows, keys) in enumerate(groups, start=1):
+        ticks, since = rows[:, 3], rows[:, 4]
+        known = since >= 0
+        # from the start of the first tick of the streak to the end of the tick P shows the change
+        lat = (ticks[known] - since[known] + 1) * clock.tick_s
+        lo = keys.min(axis=0) * resolution
+        hi = (keys.max(axis=0) + 1) * resolution
+        centroid = (keys.mean(axis=0) + 0.5) * resolution
+        ev = {
+            "id": eid,
+            "kind": KIND_NAME[kind],
+            "t_start_s": float(clock.start(since[known].min())) if known.any() else None,
+            "t_in_map_s": float(clock.end(ticks.min())),
+            "latency_s": float(np.median(lat)) if len(lat) else None,
+            "latency_min_s": float(lat.min()) if len(lat) else None,
+            "latency_max_s": float(lat.max()) if len(lat) else None,
+            "planner_latency_s": None,
+            "voxels": int(len(keys)),
+            "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
+            "centroid": [float(v) for v in centroid],
+            "extent_min": [float(v) for v in lo],
+            "extent_max": [float(v) for v in hi],
+        }
+        events.append(ev)
+        members[eid] = (rows[:, 1] * 512 + rows[:, 2]).astype(np.int64)
+    return events, members
+
+
+def event_history(
+    hist_i: np.ndarray,
+    hist_v: np.ndarray,
+    voxel_ids: np.ndarray,
+    clock: TickClock,
+    t_from_s: float | None = None,
+    t_to_s: float | None = None,
+) -> dict[str, np.ndarray]:
+    """ST and LT over time for a set of D voxels: mean, min and max at every recorded tick, each
+    voxel holding its last recorded value in between (0 before its first record)."""
+    ids = np.asarray(voxel_ids, dtype=np.int64)
+    sel = np.isin(hist_i[:, 1], ids)
+    ticks = hist_i[sel, 0].astype(np.int64)
+    vids = hist_i[sel, 1].astype(np.int64)
+    vals = hist_v[sel]
+    empty = {k: np.zeros(0) for k in ("t", "st_mean", "st_min", "st_max", "lt_mean", "lt_min", "lt_max")}
+    if not len(ticks):
+        return empty
+    order = np.lexsort((vids, ticks))
+    ticks, vids, vals = ticks[order], vids[order], vals[order]
+    uniq_ticks = np.unique(ticks)
+    col = {v: c for c, v in enumerate(np.unique(ids).tolist())}
+    cur = np.zeros((len(col), 2), dtype=np.float32)
+    out = np.zeros((len(uniq_ticks), 6), dtype=np.float32)
+    pos = 0
+    for r, t in enumerate(uniq_ticks):
+        while pos < len(ticks) and ticks[pos] == t:
+            cur[col[int(vids[pos])]] = vals[pos]
+            pos += 1
+        out[r] = (cur[:, 0].mean(), cur[:, 0].min(), cur[:, 0].max(), cur[:, 1].mean(), cur[:, 1].min(),
+                  cur[:, 1].max())  # fmt: skip
+    t = clock.end(uniq_ticks)
+    keep = np.ones(len(t), dtype=bool)
+    if t_from_s is not None:
+        keep &= t >= t_from_s
+    if t_to_s is not None:
+        keep &= t <= t_to_s
+    names = ("st_mean", "st_min", "st_max", "lt_mean", "lt_min", "lt_max")
+    res = {"t": t[keep]}
+    res.update({n: out[keep, i] for i, n in enumerate(names)})
+    return res
+
+
+def percentiles(values_ms) -> dict[str, float | None]:
+    v = np.asarray(values_ms, dtype=np.float64)
+    if not len(v):
+        return {"n": 0, "p50": None, "p95": None, "p99": None, "max": None, "mean": None}
+    p50, p95, p99 = np.percentile(v, [50, 95, 99])
+    return {"n": int(len(v)), "p50": float(p50), "p95": float(p95), "p99": float(p99), "max": float(v.max()),
+            "mean": float(v.mean())}  # fmt: skip
+
+
+def events_csv(events: list[dict]) -> str:
+    """events.csv text: one row per event, CSV_COLUMNS, empty cells for unknown values."""
+    lines = [",".join(CSV_COLUMNS)]
+    for e in events:
+        row = {
+            **{k: e.get(k) for k in CSV_COLUMNS},
+            "centroid_x": e["centroid"][0], "centroid_y": e["centroid"][1], "centroid_z": e["centroid"][2],
+            "min_x": e["extent_min"][0], "min_y": e["extent_min"][1], "min_z": e["extent_min"][2],
+            "max_x": e["extent_max"][0], "max_y": e["extent_max"][1], "max_z": e["extent_max"][2],
+        }  # fmt: skip
+        cells = []
+        for k in CSV_COLUMNS:
+            v = row[k]
+            cells.append("" if v is None else (f"{v:.3f}" if isinstance(v, float) else str(v)))
+        lines.append(",".join(cells))
+    return "\n".join(lines) + "\n"

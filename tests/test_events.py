@@ -1,0 +1,129 @@
+"""Change events and latencies (SPEC 6) on a log whose timeline is known exactly.
+
+A pillar stands in the room for the first 20 s, then is gone for 12 s; the laser sees it the
+whole time (one scan per 0.2 s tick). Defaults: st_rise_s 15 s, st_fall_s 1 s, lt_fall_s 3 s.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+from logfactory import scan, tf, write_log, yaw_quat
+from test_replay import MOUNT, PILLAR, ROBOT, T0, beam_angles, cast, run
+
+from ltmap_cli.analysis.events import TickClock, event_history, find_events
+
+
+def pillar_log(path, present_s=20.0, absent_s=12.0, rate_hz=5.0):
+    msgs = [tf(T0, [("base_link", "laser", MOUNT, (0, 0, 0, 1))], static=True)]
+    x, y, yaw = ROBOT
+    amin, inc, _ = beam_angles()
+    with_pillar, _ = cast(True)
+    without, _ = cast(False)
+    n = int(round((present_s + absent_s) * rate_hz))
+    for i in range(-1, n + 2):
+        ns = T0 + int(round(i / rate_hz * 1e9))
+        msgs.append(tf(ns, [("odom", "base_link", (x, y, 0.0), yaw_quat(yaw))]))
+        if 0 <= i < n:
+            r = with_pillar if i / rate_hz < present_s else without
+            msgs.append(scan("/scan", ns, r, angle_min=amin, angle_increment=inc, range_min=0.05, range_max=10.0))
+    return write_log(path, "mcap-ros2", msgs)
+
+
+def in_pillar(e) -> bool:
+    cx, cy, _ = e["centroid"]
+    return PILLAR[0] - 0.1 <= cx <= PILLAR[2] + 0.1 and PILLAR[1] - 0.1 <= cy <= PILLAR[3] + 0.1
+
+
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("events")
+    log = pillar_log(tmp / "pillar.mcap")
+    out = tmp / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    return out, json.loads((out / "report.json").read_text())
+
+
+def test_the_pillar_appears_after_st_rise_s_and_disappears_within_lt_fall_s(replayed):
+    out, report = replayed
+    events = report["events"]["list"]
+    pillar = [e for e in events if in_pillar(e)]
+    kinds = sorted(e["kind"] for e in pillar)
+    assert kinds == ["appear", "disappear"], pillar
+    appear = next(e for e in pillar if e["kind"] == "appear")
+    gone = next(e for e in pillar if e["kind"] == "disappear")
+    # seen from its first tick: in P after st_rise_s, within [st_rise_s - tick, st_rise_s + 2 ticks]
+    assert 15.0 - 0.2 <= appear["latency_s"] <= 15.0 + 0.4
+    # the log starts with a tf 0.2 s before the first scan
+    assert appear["t_start_s"] == pytest.approx(0.2, abs=1e-6)
+    assert appear["t_in_map_s"] == pytest.approx(15.2, abs=1e-6)
+    # seen free: ST falls 1 -> 0 in 5 ticks, LT starts falling in the 5th and is below 0.65 after
+    # 6 decrements of 1/15: 10 ticks = 2.0 s from the first tick O says free; within lt_fall_s + 2 ticks
+    assert gone["latency_s"] <= 3.0 + 0.4
+    assert gone["latency_s"] == pytest.approx(2.0, abs=1e-6)
+    # O turns free after 9 misses (3.5 / 0.405): the pillar, gone at 20.2 s, is seen free at 21.8 s
+    assert gone["t_start_s"] == pytest.approx(21.8, abs=1e-6)
+    assert appear["voxels"] >= 3 and gone["voxels"] >= 3
+
+
+def test_the_other_events_are_walls_appearing_after_st_rise_s(replayed):
+    _, report = replayed
+    others = [e for e in report["events"]["list"] if not in_pillar(e)]
+    assert others and all(e["kind"] == "appear" for e in others)
+    for e in others:
+        assert e["latency_s"] == pytest.approx(15.0, abs=1e-6)
+        lo, hi = np.array(e["extent_min"]), np.array(e["extent_max"])
+        on_wall = (np.abs(lo[:2]) >= 1.95) | (np.abs(hi[:2]) >= 1.95)
+        assert on_wall.any(), e
+    # the sparse laser (2 degrees between beams) samples far walls more than 0.3 m apart at
+    # grazing angles, so the walls come as a few events, not one per voxel
+    assert len(others) <= 8
+
+
+def test_events_csv_and_processing_latency_in_the_report(replayed):
+    out, report = replayed
+    rows = list(csv.DictReader((out / "events.csv").open()))
+    assert len(rows) == report["events"]["count"]
+    assert {r["kind"] for r in rows} == {"appear", "disappear"}
+    assert all(float(r["latency_s"]) > 0 for r in rows)
+    proc = report["processing_latency_ms"]
+    assert proc["/scan"]["n"] == 160
+    assert proc["/scan"]["frame_period_ms"] == pytest.approx(200.0)
+    assert proc["/scan"]["p50"] < proc["/scan"]["frame_period_ms"]
+    assert proc["/scan"]["keeps_up"] is True
+    assert proc["tick"]["n"] > 150
+
+
+def test_grouping_separates_space_and_time():
+    # block 0: voxels (0,0,5), (1,0,5) at ticks 10, 11; (6,0,5) far away; (0,0,5) again at tick 200
+    tr = np.array([
+        [1, 0, (0 << 6) | (0 << 3) | 5, 10, 0],
+        [1, 0, (1 << 6) | (0 << 3) | 5, 11, 1],
+        [1, 0, (6 << 6) | (0 << 3) | 5, 10, 0],
+        [1, 0, (0 << 6) | (0 << 3) | 5, 200, 120],
+        [2, 0, (1 << 6) | (0 << 3) | 5, 30, 20],
+    ])  # fmt: skip
+    coords = np.zeros((1, 3), dtype=np.int32)
+    events, members = find_events(tr, coords, 0.05, TickClock(0.0, 0.2), window_s=5.0, link_m=0.05)
+    assert [(e["kind"], e["voxels"]) for e in events] == [("appear", 2), ("appear", 1), ("disappear", 1),
+                                                         ("appear", 1)]  # fmt: skip
+    first = events[0]
+    assert first["latency_s"] == pytest.approx(11 * 0.2)  # median of (10-0+1) and (11-1+1) ticks
+    assert first["extent_min"] == pytest.approx([0.0, 0.0, 0.25]) and first["extent_max"] == pytest.approx(
+        [0.1, 0.05, 0.3])
+    assert events[2]["latency_s"] == pytest.approx(11 * 0.2)
+    assert set(members[first["id"]].tolist()) == {(0 << 6) | 5, (1 << 6) | 5}
+
+
+def test_history_holds_values_between_records():
+    hist_i = np.array([[0, 7], [0, 8], [5, 7], [10, 8]], dtype=np.int32)
+    hist_v = np.array([[0.2, 0.0], [0.4, 0.0], [1.0, 1.0], [0.0, 0.5]], dtype=np.float32)
+    h = event_history(hist_i, hist_v, np.array([7, 8]), TickClock(1.0, 0.2))
+    assert h["t"] == pytest.approx([1.2, 2.2, 3.2])
+    assert h["st_mean"] == pytest.approx([0.3, 0.7, 0.5])
+    assert h["lt_max"] == pytest.approx([0.0, 1.0, 1.0])
+    assert h["lt_min"] == pytest.approx([0.0, 0.0, 0.5])
