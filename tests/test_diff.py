@@ -254,7 +254,7 @@ def test_replay_folder_and_bad_inputs(tmp_path):
     npz = tmp_path / "state.npz"
     np.savez(npz, x=np.zeros(1))
     r = run(b, npz)
-    assert r.exit_code == 2 and "not supported" in r.output and ".npz" in r.output
+    assert r.exit_code == 2 and "no ltmap state header" in r.output and "state.npz" in r.output
 
     r = run(b, tmp_path / "missing.yaml")
     assert r.exit_code == 2 and "missing.yaml" in r.output and "Traceback" not in r.output
@@ -375,8 +375,23 @@ def test_ot_snapshots_projected_and_3d(tmp_path):
 def test_load_grid_npz_message(tmp_path):
     p = tmp_path / "s.npz"
     p.write_bytes(b"x")
-    with pytest.raises(MapFileError, match="not supported here yet"):
+    with pytest.raises(MapFileError, match="not a readable ltmap state file"):
         load_grid(p)
+
+
+def test_state_snapshot_projects_to_the_replays_long_term_map(tmp_path):
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.io.state import write_state
+
+    m = LayeredMap(MapConfig())
+    m.seed_long_term(np.array([[3, 4, 10], [3, 5, 10], [8, 8, 0], [9, 9, 40]]), 1.0)  # k=0, 40: off band
+    write_state(tmp_path / "state_final.npz", m.state_arrays(), {})
+    g = load_grid(tmp_path / "state_final.npz")
+    rows, cols = np.nonzero(g.data == 100)
+    i0, j0 = round(g.origin[0] / g.resolution), round(g.origin[1] / g.resolution)
+    assert {(int(c) + i0, int(r) + j0) for r, c in zip(rows, cols)} == {(3, 4), (3, 5)}
+    assert g.resolution == pytest.approx(0.05)
 
 
 def test_diff_voxels_counts_iou_and_tolerance():

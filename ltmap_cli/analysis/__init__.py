@@ -115,9 +115,10 @@ def resolve_map_path(path: str | Path, what: str = "map") -> Path:
 
 
 def load_grid(path: str | Path, what: str = "map", z_band: tuple[float, float] = Z_BAND) -> GridMap:
-    """Read a map argument as a GridMap: map_server YAML, replay output folder or .ot snapshot
+    """Read a map argument as a GridMap: map_server YAML, replay output folder, .ot snapshot
     (projected over ``z_band``: occupied where a voxel with log-odds > 0 meets the band, free
-    where only voxels with log-odds <= 0 do, unknown elsewhere)."""
+    where only voxels with log-odds <= 0 do, unknown elsewhere) or exact-state .npz snapshot
+    (its long-term layer, see ``project_state``)."""
     p = resolve_map_path(path, what)
     suffix = p.suffix.lower()
     if suffix in (".yaml", ".yml"):
@@ -130,14 +131,27 @@ def load_grid(path: str | Path, what: str = "map", z_band: tuple[float, float] =
         keys, logodds, res = read_ot(p)
         return project_voxels(keys, logodds, res, z_band)
     if suffix == ".npz":
-        raise MapFileError(
-            f"{what} {p}: exact-state snapshots (.npz) are not supported here yet; "
-            "give the replay's map.yaml (or its folder) or a .ot snapshot"
-        )
+        return project_state(p, z_band)
     raise MapFileError(
         f"{what} {p}: unknown kind of file '{p.suffix}'; give a map YAML, a replay output folder "
         "or a .ot snapshot"
     )
+
+
+def project_state(path: Path, z_band: tuple[float, float] = Z_BAND) -> GridMap:
+    """P of an exact-state snapshot (``snapshots/state_*.npz``): its long-term layer over
+    ``z_band``, free where its sensor map saw free space. A state holds no static layer, so this
+    is the replay's ``long_term`` map, not ``map`` (which adds S)."""
+    from ..core.config import MapConfig
+    from ..core.layers import LayeredMap
+    from ..core.projection import project
+    from ..io.state import read_state
+
+    arrays, _meta = read_state(path)
+    lmap = LayeredMap(MapConfig(resolution=float(arrays["resolution"])))
+    lmap.load_state_arrays(arrays)
+    p = project(lmap, z_min=z_band[0], z_max=z_band[1], use_static=False)
+    return GridMap(p.data, p.resolution, p.origin)
 
 
 def band_mask(k: np.ndarray, resolution: float, z_band: tuple[float, float]) -> np.ndarray:
