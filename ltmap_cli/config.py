@@ -32,6 +32,9 @@ class ReplayConfig:
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
     event_window_s: float = 5.0  # voxels crossing LT's threshold this close in time ...
     event_link_m: float = 0.3  # ... and this close in space (chained) are one event
+    plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
+    robot_radius: float = 0.2  # m, obstacle inflation for the planner
+    plan_period: float = 0.0  # s of log time between plans (0: every tick)
 
 
 @dataclass
@@ -45,6 +48,10 @@ class Config:
             problems.append(f"replay.mode must be trinary or scale, got {self.replay.mode!r}")
         if self.replay.snapshot_every <= 0:
             problems.append("replay.snapshot_every must be > 0")
+        if self.replay.plan_goal and len(self.replay.plan_goal) != 2:
+            problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
+        if self.replay.robot_radius < 0:
+            problems.append("replay.robot_radius must be >= 0")
         if problems:
             raise ConfigError("invalid configuration: " + "; ".join(problems))
 

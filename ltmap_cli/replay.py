@@ -110,6 +110,14 @@ class Replay:
         self.fixed_frame: str | None = None
         self.base_frame: str | None = None
         self.snapshots: list[dict] = []
+        self.robot_xy: tuple[float, float] | None = None
+        self.trajectory: list[tuple[float, float, float]] = []  # (t_s, x, y) of the robot per frame
+        self.tracker = None
+        if cfg.replay.plan_goal:
+            from .analysis.plan_tracker import PlanTracker
+
+            self.tracker = PlanTracker(tuple(cfg.replay.plan_goal), cfg.replay.robot_radius)
+        self._next_plan_s = 0.0
 
     # ------------------------------------------------------------------------------------
     def run(self) -> dict:
@@ -270,10 +278,22 @@ class Replay:
             t_tick = time.perf_counter()
             lmap.end_tick()
             self.counts.tick_ms.append((time.perf_counter() - t_tick) * 1e3)
+            if self.tracker is not None:
+                self._plan((self._tick_end - self.log_start) / NS)
             if self._tick_end - self._t0 >= self._next_snapshot:
                 self._snapshot((self._tick_end - self._t0) / NS)
                 self._next_snapshot += self._snap_ns
             self._tick_end += self._tick_ns
+
+    def _plan(self, t_s: float) -> None:
+        """Plan from the robot's current position on the current P (for the planner latency)."""
+        from .io.mapfile import GridMap
+
+        if self.robot_xy is None or t_s < self._next_plan_s:
+            return
+        self._next_plan_s = t_s + self.cfg.replay.plan_period
+        p = project(self.lmap)
+        self.tracker.update(t_s, GridMap(p.data, p.resolution, p.origin), self.robot_xy)
 
     def _snapshot(self, t_s: float | None) -> None:
         from .snapshots import write_snapshot
@@ -298,6 +318,9 @@ class Replay:
         robot, _ = self.tf.try_lookup(self.fixed_frame, self.base_frame, item.stamp_ns)
         if robot is None:
             self.counts.no_footprint += 1
+        else:
+            self.robot_xy = (float(robot[0, 3]), float(robot[1, 3]))
+            self.trajectory.append(((item.stamp_ns - self.log_start) / NS, *self.robot_xy))
         self._advance_ticks(item.stamp_ns)
         sc = cfg.map.sensor
         dedupe = False
@@ -345,6 +368,8 @@ class Replay:
             lmap.events.transitions, lmap.D.block_coords[: lmap.D.n_blocks], lmap.resolution, clock,
             window_s=self.cfg.replay.event_window_s, link_m=self.cfg.replay.event_link_m,
         )  # fmt: skip
+        if self.tracker is not None:
+            self.tracker.attribute(events, lmap.resolution)
         write_text_atomic(out / "events.csv", events_csv(events))
         self.events = events
         hist_i, hist_v = lmap.events.history
@@ -354,7 +379,8 @@ class Replay:
             for e in events
         }
         lat = {"add": [e["latency_s"] for e in events if e["kind"] == "appear" and e["latency_s"] is not None],
-               "remove": [e["latency_s"] for e in events if e["kind"] == "disappear" and e["latency_s"] is not None]}  # fmt: skip
+               "remove": [e["latency_s"] for e in events if e["kind"] == "disappear" and e["latency_s"] is not None],
+               "planner": [e["planner_latency_s"] for e in events if e.get("planner_latency_s") is not None]}  # fmt: skip
         self.latencies = lat
         summary = {
             "count": len(events),
@@ -362,8 +388,16 @@ class Replay:
             "disappear": sum(e["kind"] == "disappear" for e in events),
             "add_latency_s": percentiles(lat["add"]),
             "remove_latency_s": percentiles(lat["remove"]),
+            "planner_latency_s": percentiles(lat["planner"]) if self.tracker is not None else None,
             "list": events,
         }
+        if self.tracker is not None:
+            final = self.tracker.records[-1] if self.tracker.records else None
+            summary["plan"] = {
+                "goal": list(self.tracker.goal_xy),
+                "plans": len(self.tracker.records),
+                "final_length_m": final.length_m if final else None,
+            }
         processing = {}
         self.periods_ms = {}
         for topic, ms in self.counts.frame_ms.items():

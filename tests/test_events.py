@@ -127,3 +127,26 @@ def test_history_holds_values_between_records():
     assert h["st_mean"] == pytest.approx([0.3, 0.7, 0.5])
     assert h["lt_max"] == pytest.approx([0.0, 1.0, 1.0])
     assert h["lt_min"] == pytest.approx([0.0, 0.0, 0.5])
+
+
+def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
+    log = pillar_log(tmp_path / "pillar.mcap")
+    out = tmp_path / "out"
+    # the robot at (1.0, 0.5), the goal past the pillar: the straight path crosses the pillar
+    r = run(["replay", str(log), "-o", str(out), "-q", "--plan-goal", "-1.8,-1.8", "--robot-radius", "0.1"])
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    pillar = {e["kind"]: e for e in report["events"]["list"] if in_pillar(e)}
+    # the path must go round the pillar the tick P shows it, and may cross its cells again the
+    # tick P shows them free: planner latency = add / remove latency
+    assert pillar["appear"]["planner_latency_s"] == pytest.approx(pillar["appear"]["latency_s"], abs=0.21)
+    assert pillar["disappear"]["planner_latency_s"] == pytest.approx(pillar["disappear"]["latency_s"], abs=0.21)
+    assert report["events"]["plan"]["plans"] > 100
+    assert report["events"]["planner_latency_s"]["n"] >= 2
+    rows = list(csv.DictReader((out / "events.csv").open()))
+    assert any(r["planner_latency_s"] for r in rows)
+
+
+def test_bad_plan_goal_is_one_line(tmp_path):
+    r = run(["replay", "--dump-config", "--plan-goal", "3"])
+    assert r.exit_code == 2 and "--plan-goal 3: expected X,Y" in r.output

@@ -42,6 +42,14 @@ class ProgressBar:
             self.stream.flush()
 
 
+def _xy(text: str, flag: str) -> list[float]:
+    try:
+        x, y = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ConfigError(f"{flag} {text}: expected X,Y in metres, e.g. {flag} 3.5,-1.0") from None
+    return [x, y]
+
+
 def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
     import yaml
 
@@ -79,11 +87,15 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
 @click.option("--snapshot-every", type=float, help="Seconds of log time between snapshots (default 60).")
 @click.option("--mode", type=click.Choice(["trinary", "scale"]), help="map.pgm mode (default trinary).")
 @click.option("--allow-truncated", is_flag=True, help="Replay what a cut-off or corrupt log holds, exit 0.")
+@click.option("--plan-goal", metavar="X,Y", help="Plan A* to this goal (fixed frame) every tick and time how "
+              "fast the path reacts to each event (planner latency).")
+@click.option("--robot-radius", type=float, help="Robot radius for the planner's inflation, m (default 0.2).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
-           depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, overrides, quiet):
+           depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, overrides,
+           quiet):
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
     layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
     (OctoMap .ot, .ply, exact state), report.json and config.yaml into the output folder."""
@@ -97,6 +109,8 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
         "replay.snapshot_every": snapshot_every,
         "replay.mode": mode,
         "replay.fixed_frame": fixed_frame,
+        "replay.robot_radius": robot_radius,
+        "replay.plan_goal": _xy(plan_goal, "--plan-goal") if plan_goal else None,
     }
     for key, value in flags.items():
         if value is not None:
