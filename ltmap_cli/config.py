@@ -35,6 +35,8 @@ class ReplayConfig:
     plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
     robot_radius: float = 0.2  # m, obstacle inflation for the planner
     plan_period: float = 0.0  # s of log time between plans (0: every tick)
+    mcap_out: bool = False  # write OUT/replay.mcap for Foxglove / RViz
+    map_period: float = 1.0  # s of log time between map messages in replay.mcap (when they changed)
 
 
 @dataclass

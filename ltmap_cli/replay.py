@@ -118,10 +118,13 @@ class Replay:
 
             self.tracker = PlanTracker(tuple(cfg.replay.plan_goal), cfg.replay.robot_radius)
         self._next_plan_s = 0.0
+        self.mcap = None
+        self._next_map_ns = None
+        self._map_dirty = True
+        self._p_latest: Projection | None = None
 
     # ------------------------------------------------------------------------------------
     def run(self) -> dict:
-        from .io.logs import open_logs
         from .transforms import TfBuffer
 
         cfg, req = self.cfg, self.req
@@ -147,8 +150,24 @@ class Replay:
         self.tf = tf
         out = req.out_dir
         out.mkdir(parents=True, exist_ok=True)
+        if cfg.replay.mcap_out:
+            from .io.mcap_out import ReplayMcapWriter
+
+            self.mcap = ReplayMcapWriter(out / "replay.mcap")
+        try:
+            return self._run(logs_paths=req.logs, out=out, static_info=static_info, resume_info=resume_info,
+                             t_wall0=t_wall0)  # fmt: skip
+        except BaseException:
+            if self.mcap is not None:
+                self.mcap.abort()
+            raise
+
+    def _run(self, logs_paths, out, static_info, resume_info, t_wall0) -> dict:
+        from .io.logs import open_logs
+
+        cfg, req, lmap, tf = self.cfg, self.req, self.lmap, self.tf
         stopped_at = None
-        with open_logs(req.logs, allow_truncated=cfg.replay.allow_truncated) as logs:
+        with open_logs(logs_paths, allow_truncated=cfg.replay.allow_truncated) as logs:
             sel = logs.select(
                 scan_topics=cfg.replay.scan_topics,
                 cloud_topics=cfg.replay.cloud_topics,
@@ -172,6 +191,10 @@ class Replay:
                 for topic, log_ns, item in logs.messages(sel):
                     if isinstance(item, (TfSample, OdometrySample)):
                         tf.add(item)
+                        if self.mcap is not None and isinstance(item, TfSample):
+                            self.mcap.write_tf(item.stamp_ns if not item.static else logs.start_ns,
+                                               [(item.parent.lstrip("/"), item.child.lstrip("/"), item.translation,
+                                                 item.rotation_xyzw)], static=item.static)  # fmt: skip
                     else:
                         heapq.heappush(self._pending, (item.stamp_ns, self._seq, topic, item))
                         self._seq += 1
@@ -201,11 +224,17 @@ class Replay:
                 f"{', '.join(sel.sensor_topics) or '(none)'}; check the topics with `ltmap info`"
             )
         lmap.end_tick()  # the last, partial tick
+        if self.mcap is not None:
+            self._publish_maps(self._last_stamp, force=True)
+            self.mcap.close()
         self._snapshot(None)
         wall = time.perf_counter() - t_wall0
         outputs = self._write_maps(out)
         events, processing = self._measurements(out)
         outputs["events"] = str(out / "events.csv")
+        if self.mcap is not None:
+            outputs["mcap"] = str(out / "replay.mcap")
+            outputs["mcap_messages"] = dict(self.mcap.counts)
         report = {
             "logs": [str(p) for p in req.logs],
             "fixed_frame": self.fixed_frame,
@@ -276,10 +305,14 @@ class Replay:
             return
         while stamp >= self._tick_end:
             t_tick = time.perf_counter()
-            lmap.end_tick()
+            tr = lmap.end_tick()
+            if tr.lt_entered or tr.lt_left:
+                self._map_dirty = True
             self.counts.tick_ms.append((time.perf_counter() - t_tick) * 1e3)
             if self.tracker is not None:
                 self._plan((self._tick_end - self.log_start) / NS)
+            if self.mcap is not None:
+                self._publish_maps(self._tick_end)
             if self._tick_end - self._t0 >= self._next_snapshot:
                 self._snapshot((self._tick_end - self._t0) / NS)
                 self._next_snapshot += self._snap_ns
@@ -294,6 +327,47 @@ class Replay:
         self._next_plan_s = t_s + self.cfg.replay.plan_period
         p = project(self.lmap)
         self.tracker.update(t_s, GridMap(p.data, p.resolution, p.origin), self.robot_xy)
+
+    def _publish_maps(self, stamp_ns: int, force: bool = False) -> None:
+        """/map, /long_term_map and /ltmap/occupied_voxels in replay.mcap: when LT changed, at
+        most every map_period; the static voxels once."""
+        if self._next_map_ns is None:
+            self._next_map_ns = stamp_ns
+            if self.lmap.static is not None:
+                from .core.grid import coord_to_pos
+
+                keys = self.lmap.static.voxel_keys()
+                self.mcap.write_cloud("/ltmap/static_voxels", stamp_ns, coord_to_pos(keys, self.lmap.resolution),
+                                      self.fixed_frame)  # fmt: skip
+        if not force and (stamp_ns < self._next_map_ns or not self._map_dirty):
+            return
+        from .core.grid import coord_to_pos
+
+        lmap, frame = self.lmap, self.fixed_frame
+        p = project(lmap)
+        self._p_latest = p
+        self.mcap.write_grid("/map", stamp_ns, p.data, p.resolution, p.origin, frame)
+        lt = project(lmap, use_static=False)
+        self.mcap.write_grid("/long_term_map", stamp_ns, lt.data, lt.resolution, lt.origin, frame)
+        keys = lmap.occupied_keys("LT")
+        self.mcap.write_cloud("/ltmap/occupied_voxels", stamp_ns, coord_to_pos(keys, lmap.resolution), frame,
+                              values=lmap.values("LT", keys), value_name="long_term")  # fmt: skip
+        self._map_dirty = False
+        self._next_map_ns = stamp_ns + int(self.cfg.replay.map_period * NS)
+
+    def _publish_fused_scan(self, item: ScanFrame, T: np.ndarray) -> None:
+        """/scan_fused: the virtual scan of SPEC 2.3 in the laser's frame and angles."""
+        from .core.projection import virtual_scan
+
+        if self._p_latest is None:
+            self._p_latest = project(self.lmap)
+        yaw = float(np.arctan2(T[1, 0], T[0, 0]))
+        sign = 1.0 if T[2, 2] >= 0 else -1.0  # an upside-down laser turns the other way
+        angles = sign * item.angles
+        ranges = virtual_scan(self.lmap, self._p_latest, (T[0, 3], T[1, 3], yaw), angles, item.range_min,
+                              item.range_max)  # fmt: skip
+        self.mcap.write_scan("/scan_fused", item.stamp_ns, item.frame_id, item.angle_min, item.angle_increment,
+                             item.range_min, item.range_max, ranges)  # fmt: skip
 
     def _snapshot(self, t_s: float | None) -> None:
         from .snapshots import write_snapshot
@@ -350,6 +424,9 @@ class Replay:
         c.rays += r.rays
         c.frame_ms.setdefault(topic, []).append((time.perf_counter() - t_start) * 1e3)
         c.stamps.setdefault(topic, []).append(item.stamp_ns)
+        self._last_stamp = max(getattr(self, "_last_stamp", 0), item.stamp_ns)
+        if self.mcap is not None and isinstance(item, ScanFrame):
+            self._publish_fused_scan(item, T)
 
     # ------------------------------------------------------------------------------------
     def _clock(self):
