@@ -238,3 +238,534 @@ def plot_path(
             handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small", frameon=False
         )
         add_scale_bar(ax)
+
+
+# ---------------------------------------------------------------------------------------------
+# Plots of a replay (SPEC 6): layer history (the paper's Fig. 4), latency boxes (Fig. 5),
+# processing time, the final map with its events, and ``write_summary_plots`` that writes them.
+# Colours are Okabe & Ito's colour-blind-safe palette.
+
+OI_ORANGE = "#E69F00"
+OI_SKY = "#56B4E9"
+OI_GREEN = "#009E73"
+OI_YELLOW = "#F0E442"
+OI_BLUE = "#0072B2"
+OI_VERMILLION = "#D55E00"
+OI_PURPLE = "#CC79A7"
+OI_BLACK = "#000000"
+OI_CYCLE = (OI_BLUE, OI_VERMILLION, OI_GREEN, OI_ORANGE, OI_PURPLE, OI_SKY, OI_BLACK, OI_YELLOW)
+
+ST_COLOR = OI_BLUE
+LT_COLOR = OI_VERMILLION
+EVENT_COLORS = {"appear": OI_VERMILLION, "disappear": OI_BLUE}
+LATENCY_COLORS = {"add": OI_VERMILLION, "remove": OI_BLUE, "planner": OI_GREEN}
+PATH_COLOR = OI_GREEN
+TRAJECTORY_COLOR = OI_PURPLE
+MAX_HISTORY_EVENTS = 12
+
+
+def new_plot_figure(
+    width_in: float = 8.0, height_in: float = 5.0, nrows: int = 1, ncols: int = 1, layout: str | None = None
+):
+    """A Figure on an Agg canvas (no pyplot) with ``nrows x ncols`` axes; returns (fig, axes),
+    axes a single Axes when 1 x 1, else a 2D array. ``layout``: matplotlib's figure layout
+    engine (``"constrained"``), or None."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width_in, height_in), dpi=100, layout=layout)
+    FigureCanvasAgg(fig)
+    if nrows == 1 and ncols == 1:
+        return fig, fig.add_subplot(1, 1, 1)
+    return fig, fig.subplots(nrows, ncols, squeeze=False)
+
+
+def _finite(values) -> np.ndarray:
+    a = np.asarray(values, dtype=float).ravel()
+    return a[np.isfinite(a)]
+
+
+def _fmt(v: float) -> str:
+    """Three significant digits, no exponent for ordinary latencies."""
+    if v == 0 or not math.isfinite(v):
+        return f"{v:g}"
+    if abs(v) >= 100:
+        return f"{v:.0f}"
+    return f"{v:.3g}"
+
+
+def _no_data(ax, text: str) -> None:
+    ax.text(0.5, 0.5, text, transform=ax.transAxes, ha="center", va="center", color="0.4", style="italic")
+
+
+def plot_layer_history(
+    ax,
+    times_s: np.ndarray,
+    st: np.ndarray,
+    lt: np.ndarray,
+    *,
+    title: str,
+    st_spread: tuple[np.ndarray, np.ndarray] | None = None,
+    lt_spread: tuple[np.ndarray, np.ndarray] | None = None,
+    occupied_thresh: float = 0.65,
+    marks: dict[str, float] | None = None,
+    legend: bool = True,
+) -> None:
+    """The paper's Fig. 4 for one event: the ``ST`` and ``LT`` values of its voxels over log time
+    (mean lines; ``*_spread`` = (min, max) arrays draw a band), the occupied threshold dashed,
+    and a labelled vertical line per mark (``{"first seen": 3.2, "in P": 18.2}``, seconds).
+    y in [0, 1.05]; x is the log's time in seconds (linear). NaN samples leave gaps."""
+    t = np.asarray(times_s, dtype=float).ravel()
+    series = [
+        ("ST (short-term)", np.asarray(st, dtype=float).ravel(), st_spread, ST_COLOR, "-"),
+        ("LT (long-term)", np.asarray(lt, dtype=float).ravel(), lt_spread, LT_COLOR, "-"),
+    ]
+    marker = "o" if len(t) < 3 else None
+    for label, y, spread, colour, ls in series:
+        if len(y) != len(t):
+            raise ValueError(f"{label}: {len(y)} values for {len(t)} times")
+        if spread is not None:
+            lo, hi = (np.asarray(s, dtype=float).ravel() for s in spread)
+            if len(lo) == len(t) and len(hi) == len(t) and len(t):
+                ax.fill_between(
+                    t, lo, hi, color=colour, alpha=0.18, lw=0, label=f"{label.split()[0]} min-max"
+                )
+        if len(t):
+            ax.plot(t, y, ls, color=colour, lw=2, marker=marker, label=f"{label} mean")
+    ax.axhline(
+        occupied_thresh, color="0.25", ls="--", lw=1.2, label=f"occupied threshold {occupied_thresh:g}"
+    )
+    if not len(t):
+        _no_data(ax, "no samples")
+    xs = list(t[np.isfinite(t)])
+    mark_items = sorted(
+        ((float(v), k) for k, v in (marks or {}).items() if v is not None and math.isfinite(v))
+    )
+    xs += [v for v, _ in mark_items]
+    if xs:
+        x0, x1 = min(xs), max(xs)
+        pad = 0.03 * (x1 - x0) if x1 > x0 else 1.0
+        ax.set_xlim(x0 - pad, x1 + pad)
+    if mark_items:
+        from matplotlib.transforms import blended_transform_factory
+
+        trans = blended_transform_factory(ax.transData, ax.transAxes)
+        x0, x1 = ax.get_xlim()
+        styles = [":", "-.", (0, (5, 2, 1, 2)), (0, (1, 3))]
+        level, last_x = 0, None
+        for i, (v, name) in enumerate(mark_items):
+            ax.axvline(v, color="0.2", ls=styles[i % len(styles)], lw=1.2)
+            # stagger the labels of marks that are close to each other
+            level = level + 1 if last_x is not None and (v - last_x) < 0.06 * (x1 - x0) else 0
+            last_x = v
+            ax.text(
+                v,
+                0.97 - 0.33 * (level % 3),
+                f" {name} {v:.1f} s",
+                transform=trans,
+                rotation=90,
+                ha="right",
+                va="top",
+                fontsize="small",
+                color="0.15",
+                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec="none", alpha=0.75),
+            )
+    ax.set_ylim(0.0, 1.05)
+    ax.set_xlabel("log time [s]")
+    ax.set_ylabel("layer value")
+    ax.set_title(title)
+    ax.grid(True, color="0.9", lw=0.8)
+    ax.set_axisbelow(True)
+    if legend:
+        ax.legend(loc="lower right", fontsize="small", framealpha=0.85)
+
+
+def plot_latency_boxes(
+    ax,
+    latencies: dict[str, list[float]],
+    *,
+    targets: dict[str, float] | None = None,
+    title: str = "Event latencies",
+) -> None:
+    """The paper's Fig. 5: a box plot per latency kind (``{"add": [...], "remove": [...],
+    "planner": [...]}``, seconds) with the individual values overlaid (jittered), n and the
+    median in the tick labels. A kind with no (finite) values is shown as "no events".
+    ``targets``: a key naming a kind draws a dashed line across that box; any other key
+    (e.g. ``st_rise_s``) a dashed line across the whole plot."""
+    from matplotlib.transforms import blended_transform_factory
+
+    names = list(latencies)
+    trans = blended_transform_factory(ax.transData, ax.transAxes)
+    rng = np.random.default_rng(0)
+    tick_labels = []
+    all_vals: list[float] = []
+    for i, name in enumerate(names, start=1):
+        v = _finite(latencies[name])
+        colour = LATENCY_COLORS.get(name, OI_CYCLE[(i + 2) % len(OI_CYCLE)])
+        if len(v) == 0:
+            ax.text(
+                i, 0.5, "no events", transform=trans, ha="center", va="center", color="0.4", style="italic"
+            )
+            tick_labels.append(f"{name}\nn = 0")
+            continue
+        all_vals += list(v)
+        bp = ax.boxplot(
+            [v],
+            positions=[i],
+            widths=0.5,
+            showfliers=False,
+            patch_artist=True,
+            whis=(0, 100),
+            medianprops=dict(color="black", lw=2),
+        )
+        for box in bp["boxes"]:
+            box.set_facecolor(colour)
+            box.set_alpha(0.3)
+        jitter = rng.uniform(-0.13, 0.13, len(v)) if len(v) > 1 else np.zeros(1)
+        ax.scatter(
+            i + jitter, v, s=22, color=colour, edgecolors="black", linewidths=0.5, zorder=3, alpha=0.85
+        )
+        tick_labels.append(f"{name}\nn = {len(v)}, median {_fmt(float(np.median(v)))} s")
+    for k, (name, value) in enumerate((targets or {}).items()):
+        if value is None or not math.isfinite(value):
+            continue
+        style = ["--", "-.", ":"][k % 3]
+        if name in names:
+            i = names.index(name) + 1
+            ax.plot(
+                [i - 0.4, i + 0.4],
+                [value, value],
+                ls=style,
+                color="0.2",
+                lw=1.5,
+                label=f"{name} target {_fmt(value)} s",
+            )
+        else:
+            ax.axhline(value, ls=style, color="0.2", lw=1.2, label=f"{name} = {_fmt(value)} s")
+        all_vals.append(float(value))
+    ax.set_xticks(range(1, len(names) + 1))
+    ax.set_xticklabels(tick_labels)
+    ax.set_xlim(0.4, len(names) + 0.6)
+    if all_vals:
+        lo, hi = min(0.0, min(all_vals)), max(all_vals)
+        ax.set_ylim(lo, hi * 1.08 if hi > 0 else 1.0)
+    else:
+        ax.set_ylim(0.0, 1.0)
+    ax.set_ylabel("latency [s]")
+    ax.set_title(title)
+    ax.grid(True, axis="y", color="0.9", lw=0.8)
+    ax.set_axisbelow(True)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper right", fontsize="small", framealpha=0.85)
+
+
+def plot_processing_hist(
+    ax,
+    per_source_ms: dict[str, np.ndarray],
+    *,
+    periods_ms: dict[str, float] | None = None,
+    title: str = "Processing time per frame (wall clock)",
+    bins: int = 50,
+) -> None:
+    """Histogram of the wall-clock processing time of each frame, per source (sensor topic, or
+    ``tick``), on shared bins; log-scaled x when the values span more than ~30x. A dashed line
+    per source at its frame period (``periods_ms``): mass right of it is a frame that took longer
+    than the sensor's period. p50/p95/p99 and the share over the period are in the legend."""
+    periods = {
+        k: float(v) for k, v in (periods_ms or {}).items() if v is not None and math.isfinite(v) and v > 0
+    }
+    data = {name: _finite(v) for name, v in per_source_ms.items()}
+    values = np.concatenate([v for v in data.values()] + [np.zeros(0)])
+    if len(values) == 0:
+        _no_data(ax, "no frames")
+    pos = values[values > 0]
+    log = len(pos) > 0 and pos.max() / pos.min() > 30.0
+    pers = [periods[k] for k in data if k in periods]
+    span = list(values) + pers
+    if log:
+        lo, hi = min([float(pos.min())] + pers), max([float(pos.max())] + pers)
+        edges = np.geomspace(lo / 1.1, hi * 1.1, bins + 1)
+        ax.set_xscale("log")
+    elif span:
+        lo, hi = min(0.0, min(span)), max(span)
+        edges = np.linspace(lo, hi * 1.05 if hi > 0 else 1.0, bins + 1)
+    else:
+        edges = np.linspace(0.0, 1.0, bins + 1)
+    for i, (name, v) in enumerate(data.items()):
+        colour = OI_CYCLE[i % len(OI_CYCLE)]
+        if len(v) == 0:
+            ax.plot([], [], color=colour, lw=2, label=f"{name}: no frames")
+        else:
+            p50, p95, p99 = np.percentile(v, [50, 95, 99])
+            label = f"{name} (n = {len(v)}): p50 {_fmt(p50)}, p95 {_fmt(p95)}, p99 {_fmt(p99)} ms"
+            if name in periods:
+                label += f"; {100.0 * np.mean(v > periods[name]):.1f}% over period"
+            vv = np.clip(v, edges[0], edges[-1]) if log else v
+            ax.hist(vv, bins=edges, histtype="step", lw=2, color=colour, label=label)
+            ax.hist(vv, bins=edges, histtype="stepfilled", color=colour, alpha=0.12)
+        if name in periods:
+            ax.axvline(
+                periods[name],
+                color=colour,
+                ls="--",
+                lw=1.5,
+                label=f"{name} frame period {_fmt(periods[name])} ms",
+            )
+    ax.set_xlim(edges[0], edges[-1])
+    ax.set_xlabel("processing time per frame [ms]" + (" (log scale)" if log else ""))
+    ax.set_ylabel("frames")
+    ax.set_title(title)
+    ax.grid(True, color="0.9", lw=0.8)
+    ax.set_axisbelow(True)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.14), fontsize="small", frameon=False, ncol=1)
+
+
+def event_rectangle(event: dict, min_size: float = 0.0):
+    """(x0, y0, width, height) of an event's xy extent, grown about its centre to ``min_size``."""
+    (x0, y0), (x1, y1) = event["extent_min"][:2], event["extent_max"][:2]
+    x0, x1 = sorted((float(x0), float(x1)))
+    y0, y1 = sorted((float(y0), float(y1)))
+    if x1 - x0 < min_size:
+        c = 0.5 * (x0 + x1)
+        x0, x1 = c - min_size / 2, c + min_size / 2
+    if y1 - y0 < min_size:
+        c = 0.5 * (y0 + y1)
+        y0, y1 = c - min_size / 2, c + min_size / 2
+    return x0, y0, x1 - x0, y1 - y0
+
+
+def plot_map_events(
+    ax,
+    grid,
+    events: list[dict],
+    *,
+    path_xy: np.ndarray | None = None,
+    robot_xy: np.ndarray | None = None,
+    title: str | None = None,
+    labels: bool = True,
+) -> None:
+    """The final 2D map (``plot_map``) with each event's xy extent as a box (vermillion: appeared,
+    blue: disappeared) labelled with its id, and optionally the planned path (green) and the
+    robot's trajectory (purple). A box narrower than a cell is drawn one cell wide. Each box is a
+    ``Rectangle`` whose gid is ``"event <id>"``."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Rectangle
+
+    counts = {"appear": 0, "disappear": 0}
+    for e in events:
+        counts[e.get("kind", "appear")] = counts.get(e.get("kind", "appear"), 0) + 1
+    if title is None:
+        title = f"Final map: {counts['appear']} appeared, {counts['disappear']} disappeared"
+    plot_map(ax, grid, title=title, scale_bar=False)
+    for e in events:
+        kind = e.get("kind", "appear")
+        colour = EVENT_COLORS.get(kind, OI_PURPLE)
+        x0, y0, w, h = event_rectangle(e, min_size=float(grid.resolution))
+        ax.add_patch(Rectangle((x0, y0), w, h, facecolor=colour, alpha=0.25, edgecolor="none", zorder=3))
+        box = Rectangle(
+            (x0, y0), w, h, fill=False, edgecolor=colour, lw=2, zorder=4, gid=f"event {e.get('id')}"
+        )
+        ax.add_patch(box)
+        if labels:
+            ax.annotate(
+                str(e.get("id")),
+                (x0, y0 + h),
+                xytext=(2, 2),
+                textcoords="offset points",
+                ha="left",
+                va="bottom",
+                fontsize="small",
+                fontweight="bold",
+                color=colour,
+                zorder=5,
+                bbox=dict(boxstyle="round,pad=0.15", fc="white", ec=colour, lw=0.8, alpha=0.85),
+            )
+    handles = []
+    if robot_xy is not None and len(robot_xy):
+        r = np.asarray(robot_xy, dtype=float)
+        ax.plot(r[:, 0], r[:, 1], "-", color=TRAJECTORY_COLOR, lw=1.3, alpha=0.9, zorder=5)
+        ax.plot([r[-1, 0]], [r[-1, 1]], "o", color=TRAJECTORY_COLOR, mec="black", ms=7, zorder=6)
+        handles.append(
+            Line2D(
+                [],
+                [],
+                color=TRAJECTORY_COLOR,
+                lw=1.3,
+                marker="o",
+                mec="black",
+                markevery=[1],
+                label="robot trajectory (o = end)",
+            )
+        )
+    if path_xy is not None and len(path_xy):
+        p = np.asarray(path_xy, dtype=float)
+        ax.plot(p[:, 0], p[:, 1], "-", color=PATH_COLOR, lw=2.2, zorder=6)
+        ax.plot([p[-1, 0]], [p[-1, 1]], "*", color=PATH_COLOR, mec="black", ms=13, zorder=7)
+        handles.append(Line2D([], [], color=PATH_COLOR, lw=2.2, label="planned path (* = goal)"))
+    handles = [
+        Patch(
+            facecolor=to_rgba(EVENT_COLORS["appear"], 0.35),
+            edgecolor=EVENT_COLORS["appear"],
+            lw=2,
+            label=f"appeared ({counts['appear']})",
+        ),
+        Patch(
+            facecolor=to_rgba(EVENT_COLORS["disappear"], 0.35),
+            edgecolor=EVENT_COLORS["disappear"],
+            lw=2,
+            label=f"disappeared ({counts['disappear']})",
+        ),
+        *handles,
+        Patch(facecolor=np.array(OCCUPIED_RGB) / 255, edgecolor="0.5", label="occupied"),
+        Patch(facecolor=np.array(FREE_RGB) / 255, edgecolor="0.5", label="free"),
+        Patch(facecolor=np.array(UNKNOWN_RGB) / 255, edgecolor="0.5", label="unknown"),
+    ]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small", frameon=False)
+    add_scale_bar(ax)
+
+
+def to_rgba(colour, alpha: float):
+    from matplotlib.colors import to_rgba as _to_rgba
+
+    return _to_rgba(colour, alpha)
+
+
+def _event_title(event: dict | None, event_id) -> str:
+    if not event:
+        return f"event {event_id}"
+    c = event.get("centroid")
+    where = f" at ({c[0]:.1f}, {c[1]:.1f}) m" if c is not None else ""
+    return f"event {event_id}: {event.get('kind', '?')}{where}"
+
+
+def write_layer_history(
+    path,
+    events: list[dict],
+    histories: dict,
+    *,
+    occupied_thresh: float = 0.65,
+    max_events: int = MAX_HISTORY_EVENTS,
+) -> None:
+    """One PNG with a ``plot_layer_history`` subplot per event (three columns), for the first
+    ``max_events`` events in the order of ``events`` that have a history (then any other
+    histories, by id). Marks come from ``histories[id]["marks"]`` or ``event["marks"]``."""
+    by_id = {e.get("id"): e for e in events}
+    order = [e.get("id") for e in events if e.get("id") in histories]
+    order += sorted((k for k in histories if k not in set(order)), key=str)
+    shown = order[:max_events]
+    n = len(shown)
+    ncols = min(3, max(n, 1))
+    nrows = max(1, math.ceil(n / ncols))
+    width = max(5.4 * ncols, 8.0)
+    fig, axes = new_plot_figure(width, 3.4 * nrows + 0.9, nrows, ncols, layout="constrained")
+    axes = np.atleast_1d(axes).ravel()
+    if not n:
+        plot_layer_history(
+            axes[0], np.zeros(0), np.zeros(0), np.zeros(0), title="no events", occupied_thresh=occupied_thresh
+        )
+        axes[0].texts[0].set_text("no event was detected")
+    for ax, eid in zip(axes, shown):
+        h = histories[eid]
+        ev = by_id.get(eid)
+
+        def spread(layer, h=h):
+            lo, hi = h.get(f"{layer}_min"), h.get(f"{layer}_max")
+            return (lo, hi) if lo is not None and hi is not None else None
+
+        marks = h.get("marks") or (ev or {}).get("marks")
+        plot_layer_history(
+            ax,
+            h["t"],
+            h["st_mean"],
+            h["lt_mean"],
+            title=_event_title(ev, eid),
+            st_spread=spread("st"),
+            lt_spread=spread("lt"),
+            occupied_thresh=occupied_thresh,
+            marks=marks,
+            legend=False,
+        )
+    for ax in axes[n:]:
+        if n:
+            ax.set_axis_off()
+    note = f" (first {n} of {len(order)} events)" if len(order) > n else ""
+    heading = f"ST and LT values of each event's voxels over time{note}"
+    if n:  # the heading is the legend's title (a suptitle would overlap an outside legend)
+        handles, labels = axes[0].get_legend_handles_labels()
+        fig.legend(
+            handles,
+            labels,
+            loc="outside upper center",
+            ncol=min(len(labels), 5 if width > 12 else 3),
+            fontsize="small",
+            frameon=False,
+            title=heading,
+            title_fontsize="large",
+        )
+    else:
+        fig.suptitle(heading, fontsize="large")
+    save_png(fig, path)
+
+
+def write_summary_plots(
+    out_dir,
+    *,
+    grid,
+    events: list[dict],
+    histories: dict[int, dict],
+    latencies: dict[str, list[float]],
+    processing_ms: dict[str, np.ndarray],
+    periods_ms: dict[str, float],
+    path_xy=None,
+    robot_xy=None,
+    occupied_thresh: float = 0.65,
+    targets=None,
+    max_history_events: int = MAX_HISTORY_EVENTS,
+    map3d: dict | None = None,
+) -> dict[str, str]:
+    """Write the replay's plots into ``out_dir`` and return ``{name: path}``:
+
+    - ``layer_history.png``: one subplot per event (``write_layer_history``; at most
+      ``max_history_events``, the title says when some are left out);
+    - ``latency_boxes.png``, ``processing_latency.png``;
+    - ``map_events.png`` (skipped when ``grid`` is None);
+    - ``map_3d.png`` when ``map3d`` is given: keyword arguments of
+      ``render3d.render_map_3d`` (``centers``, ``values``, ``resolution``, ...).
+    Every file is written atomically."""
+    from pathlib import Path
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    written: dict[str, str] = {}
+
+    p = out / "layer_history.png"
+    write_layer_history(p, events, histories, occupied_thresh=occupied_thresh, max_events=max_history_events)
+    written["layer_history"] = str(p)
+
+    fig, ax = new_plot_figure(max(6.0, 2.6 * max(len(latencies), 1) + 2.0), 5.0)
+    plot_latency_boxes(ax, latencies, targets=targets)
+    p = out / "latency_boxes.png"
+    save_png(fig, p)
+    written["latency_boxes"] = str(p)
+
+    fig, ax = new_plot_figure(9.0, 5.0)
+    plot_processing_hist(ax, processing_ms, periods_ms=periods_ms)
+    p = out / "processing_latency.png"
+    save_png(fig, p)
+    written["processing_latency"] = str(p)
+
+    if grid is not None:
+        fig, ax = new_figure(grid.width, grid.height, legend=True)
+        plot_map_events(ax, grid, events, path_xy=path_xy, robot_xy=robot_xy)
+        p = out / "map_events.png"
+        save_png(fig, p)
+        written["map_events"] = str(p)
+
+    if map3d is not None:
+        from .render3d import render_map_3d
+
+        p = out / "map_3d.png"
+        render_map_3d(p, **map3d)
+        written["map_3d"] = str(p)
+    return written
