@@ -36,6 +36,7 @@ class ReplayConfig:
     robot_radius: float = 0.2  # m, obstacle inflation for the planner
     plan_period: float = 0.0  # s of log time between plans (0: every tick)
     mcap_out: bool = False  # write OUT/replay.mcap for Foxglove / RViz
+    plots: bool = True  # write OUT/plots/*.png
     map_period: float = 1.0  # s of log time between map messages in replay.mcap (when they changed)
 
 

@@ -232,6 +232,8 @@ class Replay:
         outputs = self._write_maps(out)
         events, processing = self._measurements(out)
         outputs["events"] = str(out / "events.csv")
+        if cfg.replay.plots:
+            outputs["plots"] = self._plots(out / "plots")
         if self.mcap is not None:
             outputs["mcap"] = str(out / "replay.mcap")
             outputs["mcap_messages"] = dict(self.mcap.counts)
@@ -487,6 +489,43 @@ class Replay:
         processing["tick"] = {**percentiles(self.counts.tick_ms), "frame_period_ms": tick_period}
         self.periods_ms["tick"] = tick_period
         return summary, processing
+
+    def _plots(self, folder: Path) -> dict[str, str]:
+        """plots/: ST and LT of each event over time (Fig. 4), latency box plots (Fig. 5), the
+        processing-time histogram, the final map with events (and path), and map_3d.png."""
+        from .core.grid import coord_to_pos
+        from .io.mapfile import GridMap
+        from .plots import write_summary_plots
+
+        lmap, cfg = self.lmap, self.cfg
+        p = project(lmap)
+        for e in self.events:
+            h = self.histories.get(e["id"])
+            if h is None:
+                continue
+            first = "first seen" if e["kind"] == "appear" else "first seen free"
+            shown = "in P" if e["kind"] == "appear" else "out of P"
+            h["marks"] = {k: v for k, v in ((first, e["t_start_s"]), (shown, e["t_in_map_s"]),
+                                            ("path changed", e.get("t_plan_change_s"))) if v is not None}  # fmt: skip
+        keys = lmap.occupied_keys("LT")
+        static_keys = lmap.static.voxel_keys() if lmap.static is not None else None
+        traj = np.array([(x, y) for _, x, y in self.trajectory]) if self.trajectory else None
+        lay = cfg.map.layers
+        return write_summary_plots(
+            folder, grid=GridMap(p.data, p.resolution, p.origin), events=self.events, histories=self.histories,
+            latencies=self.latencies if self.tracker is not None else {k: v for k, v in self.latencies.items()
+                                                                       if k != "planner"},
+            processing_ms={k: np.asarray(v) for k, v in self.counts.frame_ms.items()} | {"tick": np.asarray(
+                self.counts.tick_ms)},
+            periods_ms=self.periods_ms,
+            path_xy=self.tracker.final_path_xy if self.tracker is not None else None, robot_xy=traj,
+            occupied_thresh=cfg.map.projection.occupied_thresh,
+            targets={"add": lay.st_rise_s, "remove": lay.lt_fall_s},
+            map3d={"centers": coord_to_pos(keys, lmap.resolution), "values": lmap.values("LT", keys),
+                   "resolution": lmap.resolution,
+                   "static_centers": coord_to_pos(static_keys, lmap.resolution) if static_keys is not None else None,
+                   "title": "final map: long-term voxels by height, static in grey"},
+        )  # fmt: skip
 
     def _write_maps(self, out: Path) -> dict[str, str]:
         from .io.mapfile import GridMap, write_map

@@ -133,7 +133,8 @@ def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
     log = pillar_log(tmp_path / "pillar.mcap")
     out = tmp_path / "out"
     # the robot at (1.0, 0.5), the goal past the pillar: the straight path crosses the pillar
-    r = run(["replay", str(log), "-o", str(out), "-q", "--plan-goal", "-1.8,-1.8", "--robot-radius", "0.1"])
+    r = run(["replay", str(log), "-o", str(out), "-q", "--plan-goal", "-1.8,-1.8", "--robot-radius", "0.1"],
+            plots=True)
     assert r.exit_code == 0, r.output
     report = json.loads((out / "report.json").read_text())
     pillar = {e["kind"]: e for e in report["events"]["list"] if in_pillar(e)}
@@ -150,3 +151,22 @@ def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
 def test_bad_plan_goal_is_one_line(tmp_path):
     r = run(["replay", "--dump-config", "--plan-goal", "3"])
     assert r.exit_code == 2 and "--plan-goal 3: expected X,Y" in r.output
+
+
+def test_plots_of_the_replay_are_valid_pngs(tmp_path):
+    from PIL import Image
+
+    log = pillar_log(tmp_path / "pillar.mcap", present_s=17.0, absent_s=4.0)
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q", "--plan-goal", "-1.8,-1.8"], plots=True)
+    assert r.exit_code == 0, r.output
+    names = {"layer_history", "latency_boxes", "processing_latency", "map_events", "map_3d"}
+    assert {p.stem for p in (out / "plots").glob("*.png")} == names
+    for name in names:
+        path = out / "plots" / f"{name}.png"
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        img = np.asarray(Image.open(path).convert("L"), dtype=float)
+        assert path.stat().st_size > 10_000 and min(img.shape) > 200
+        assert img.std() > 5  # not a blank canvas
+    report = json.loads((out / "report.json").read_text())
+    assert set(report["outputs"]["plots"]) == names

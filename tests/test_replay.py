@@ -111,9 +111,12 @@ def occupied_cells(yaml_path: Path) -> set:
     return {(int(c) + i0, int(r) + j0) for r, c in zip(rows, cols)}
 
 
-def run(args, **kw):
-    result = CliRunner().invoke(cli, args, catch_exceptions=False, **kw)
-    return result
+def run(args, plots: bool = False, **kw):
+    """Invoke the CLI; replays skip plots (seconds each) unless a test asks for them."""
+    args = list(args)
+    if args and args[0] == "replay" and not plots and "--dump-config" not in args:
+        args.append("--no-plots")
+    return CliRunner().invoke(cli, args, catch_exceptions=False, **kw)
 
 
 def assert_one_line_error(result, *needles):
