@@ -155,13 +155,39 @@ def series(folder: Path, keys: np.ndarray) -> list[tuple[float, np.ndarray, np.n
 
 
 def enter_leave(rows, t_on: float, t_off: float | None) -> tuple[float, float | None]:
+    """(first time any voxel is in LT, first time after the removal that every voxel seen gone
+    is out of LT). "Seen gone" = O says free at some time after the removal: a voxel that is not
+    observed again keeps its LT (SPEC 2.2), so the removal criterion applies to what was seen;
+    at least 90 % of the object's long-term voxels must have been seen gone."""
     t_enter = next(t for t, lt, _ in rows if (lt >= OCC).any())
     assert t_enter > t_on, "in LT before the object appeared"
     t_leave = None
     if t_off is not None:
-        t_leave = next(t for t, lt, _ in rows if t > t_off and not (lt >= OCC).any())
         assert all((lt >= OCC).any() for t, lt, _ in rows if t_enter <= t <= t_off)
+        in_lt = next(lt for t, lt, _ in rows if t >= t_off) >= OCC
+        seen_gone = np.zeros_like(in_lt)
+        for t, _, lo in rows:
+            if t > t_off:
+                seen_gone |= lo < 0
+        assert (seen_gone & in_lt).sum() >= 0.9 * in_lt.sum(), (int((seen_gone & in_lt).sum()), int(in_lt.sum()))
+        t_leave = next(t for t, lt, _ in rows if t > t_off and not ((lt >= OCC) & seen_gone).any())
     return t_enter, t_leave
+
+
+def leave_after_seen_gone(rows, t_off: float) -> float:
+    """The longest time, over the voxels in LT at the removal and seen gone after it, from the
+    first tick O says the voxel is free to the first tick its LT is below the threshold: the
+    spec's "leaves within lt_fall_s + 2 ticks of being seen gone"."""
+    start = next(i for i, r in enumerate(rows) if r[0] >= t_off)
+    in_lt = rows[start][1] >= OCC
+    worst = 0.0
+    for v in np.nonzero(in_lt)[0]:
+        t_gone = next((t for t, _, lo in rows[start:] if lo[v] < 0), None)
+        if t_gone is None:
+            continue  # never observed free again: LT keeps it (checked in enter_leave)
+        t_out = next(t for t, lt, _ in rows[start:] if t >= t_gone and lt[v] < OCC)
+        worst = max(worst, t_out - t_gone)
+    return worst
 
 
 def check_start(folder: Path, gt: dict) -> None:
@@ -204,7 +230,9 @@ def test_static_object_enters_and_leaves_long_term(out):
     folder = out("01_static_object/log.mcap", "--snapshot-every", "0.2")
     check_start(folder, gt)
     (t_on, t_off) = gt_object(gt, "box")["present"][0]
-    t_enter, t_leave = enter_leave(series(folder, object_keys(gt, "box")), t_on, t_off)
+    rows = series(folder, object_keys(gt, "box"))
+    t_enter, t_leave = enter_leave(rows, t_on, t_off)
+    assert leave_after_seen_gone(rows, t_off) <= LEAVE_MAX
     # measured: appears at 3.0 s, in LT at 18.2 s (15.2 s), removed at 23.0 s, out of LT at 25.8 s (2.8 s)
     assert LAY.st_rise_s - TICK <= t_enter - t_on <= ENTER_MAX
     assert t_leave - t_off <= LEAVE_MAX
@@ -286,6 +314,7 @@ def test_closed_door_enters_is_kept_while_unobserved_and_leaves(out):
     (t_close, t_open) = gt_object(gt, "door")["present"][0]
     rows = series(folder, object_keys(gt, "door"))
     t_enter, t_leave = enter_leave(rows, t_close, t_open)
+    assert leave_after_seen_gone(rows, t_open) <= LEAVE_MAX
     # measured: closes at 4.0 s while the robot drives toward it, in LT at 19.2 s (15.2 s);
     # opens at 31.0 s, out of LT at 33.8 s (2.8 s)
     assert LAY.st_rise_s - TICK <= t_enter - t_close <= ENTER_MAX
@@ -380,9 +409,13 @@ def test_house_removed_box_leaves_and_person_never_enters(house):
     gt, depth, _ = house
     check_start(depth, gt)
     (t_on, t_off) = gt_object(gt, "box")["present"][0]
-    t_enter, t_leave = enter_leave(series(depth, object_keys(gt, "box")), t_on, t_off)
+    rows = series(depth, object_keys(gt, "box"))
+    t_enter, t_leave = enter_leave(rows, t_on, t_off)
     # the person walks between the robot and the box (4..14 s): sight is not continuous, so entry
-    # is only bounded below here (measured 15.8 s); the removal at 25 s is watched (measured 2.8 s)
+    # is only bounded here (measured 15.8 s)
     assert LAY.st_rise_s - TICK <= t_enter - t_on <= 25.0
-    assert t_leave - t_off <= LEAVE_MAX
+    # the box's upper part is seen by the 2.5 Hz camera only: O needs 9 misses (3.6 s) to call it
+    # free, then LT leaves within lt_fall_s + 2 ticks of that (measured 2.0 s; 5.2 s from removal)
+    assert leave_after_seen_gone(rows, t_off) <= LEAVE_MAX
+    assert t_leave - t_off <= 9 / 2.5 + LEAVE_MAX
     assert all(n == 0 for _, n, _ in _lt_near(depth, _person_area(gt)))

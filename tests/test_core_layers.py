@@ -173,3 +173,34 @@ def test_exact_state_round_trip_continues_identically():
     c = LayeredMap(MapConfig())
     c.load_state_arrays(a.state_arrays(), long_term_only=True)
     assert val(c, "LT") == 1.0 and val(c, "ST") == 0.0 and len(c.occupied_keys("O")) == 0
+
+
+@pytest.mark.parametrize("every", [1, 2, 5])
+def test_entry_and_removal_do_not_depend_on_the_sensor_rate(every):
+    """A camera that observes every 2nd or 5th tick (2.5 Hz, 1 Hz) gives the same timing as one
+    that observes every tick: the gap since the last observation counts (up to max_gap_s)."""
+    m = LayeredMap(MapConfig())
+    tick = 0
+    while val(m, "LT") < 1.0:
+        if tick % every == 0:
+            see_obstacle(m)
+        else:
+            m.end_tick()
+        tick += 1
+        assert tick < 400
+    # entered at tick 74 (75 ticks = st_rise_s) with any rate that divides it, else at the
+    # first observation after
+    assert 74 <= tick - 1 <= 74 + every - 1
+    for _ in range(20):
+        m.end_tick() if tick % every else see_obstacle(m)
+        tick += 1
+    gone = 0
+    while val(m, "LT") >= 0.65:
+        if tick % every == 0:
+            see_free(m)
+        else:
+            m.end_tick()
+        tick += 1
+        gone += 1
+        assert gone < 100
+    assert gone * 0.2 <= 2.0 + every * 0.2 + 1e-9  # 10 ticks at every rate, up to one period more

@@ -54,6 +54,7 @@ class LayerConfig:
     st_forget_s: float = 60.0
     lt_fall_s: float = 3.0
     static_margin_cells: int = 1  # obstacles within this many voxels of S are S's own
+    max_gap_s: float = 1.0  # a voxel re-observed after a gap counts the gap (up to this) as observed time
 
 
 @dataclass
@@ -89,7 +90,7 @@ class MapConfig:
         if s.depth_max_range <= 0:
             problems.append(f"map.sensor.depth_max_range must be > 0, got {s.depth_max_range}")
         lay = self.layers
-        for name in ("tick", "st_rise_s", "st_fall_s", "st_forget_s", "lt_fall_s"):
+        for name in ("tick", "st_rise_s", "st_fall_s", "st_forget_s", "lt_fall_s", "max_gap_s"):
             if getattr(lay, name) <= 0:
                 problems.append(f"map.layers.{name} must be > 0, got {getattr(lay, name)}")
         if lay.static_margin_cells < 0:

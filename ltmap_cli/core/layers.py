@@ -36,6 +36,7 @@ D_CHANNELS = {
     "st": (np.float32, 0.0),
     "lt": (np.float32, 0.0),
     "last_obs": (np.int32, -1),  # last tick seen as an obstacle
+    "last_seen": (np.int32, -1),  # last tick observed at all (obstacle or free)
     "obst_since": (np.int32, -1),  # tick the current obstacle streak began (ST rose from 0)
     "free_since": (np.int32, -1),  # tick the current seen-free streak began while LT > 0
 }
@@ -178,9 +179,9 @@ def _record_history(hist_i, hist_v, hist_meta, tick_index, vid, st_v, lt_v):
 def _tick_kernel(
     tb_block, tb_off, n_tb, start,
     o_coords, logodds,
-    d_keys, d_vals, d_coords, d_meta, st, lt, last_obs, obst_since, free_since,
+    d_keys, d_vals, d_coords, d_meta, st, lt, last_obs, last_seen, obst_since, free_since,
     near, near_i0, near_j0, margin,
-    rise, fall, lt_fall, occ_thr, k_lo, k_hi, tick_index, record_all,
+    rise, fall, lt_fall, occ_thr, k_lo, k_hi, tick_index, max_gap, record_all,
     tr, tr_meta, hist_i, hist_v, hist_meta, counters,
 ):  # fmt: skip
     """Tick rules for the voxels observed in this tick.
@@ -189,7 +190,12 @@ def _tick_kernel(
     (nothing of that item was changed). counters: [obstacles, seen free, LT entered, LT left].
     For voxels inside the z band [k_lo, k_hi] (what P shows), LT crossing ``occ_thr`` is recorded
     in ``tr`` as (kind, D block, offset, tick, tick the streak began), and ST / LT values in the
-    history (every tick when ``record_all``, else at transitions)."""
+    history (every tick when ``record_all``, else at transitions).
+
+    Rates are per tick of time, not per observation: a voxel observed again ``g`` ticks after
+    it was last observed at all (a depth camera slower than the tick) changes by
+    ``min(g, max_gap)`` steps, so a layer's behaviour does not depend on the sensor rate. A first
+    sighting counts one step, and a voxel seen free in between gets no credit for the gap."""
     NH, NW = near.shape
     for t in range(start, n_tb):
         if tr_meta[0] >= tr.shape[0] or hist_meta[0] >= hist_i.shape[0]:
@@ -214,11 +220,15 @@ def _tick_kernel(
             doff = voxel_offset(i, j, k)
             counters[0] += 1
             old = st[db, doff]
+            steps = 1
             if old == 0.0:
                 obst_since[db, doff] = tick_index
+            elif last_seen[db, doff] >= 0:  # unobserved since then: credit the gap
+                steps = min(max(tick_index - last_seen[db, doff], 1), max_gap)
             free_since[db, doff] = -1
-            v = old + rise
+            v = old + rise * steps
             last_obs[db, doff] = tick_index
+            last_seen[db, doff] = tick_index
             entered = False
             if v >= 1.0 - 1e-4:
                 v = 1.0
@@ -248,16 +258,20 @@ def _tick_kernel(
             w = lt[db, doff]
             if old_st == 0.0 and w == 0.0:
                 continue  # nothing to fall
-            if w > 0.0 and free_since[db, doff] < 0:
+            steps = 1
+            if free_since[db, doff] >= 0 and last_seen[db, doff] >= 0:
+                steps = min(max(tick_index - last_seen[db, doff], 1), max_gap)
+            if free_since[db, doff] < 0:
                 free_since[db, doff] = tick_index
-            v = old_st - fall
+            last_seen[db, doff] = tick_index
+            v = old_st - fall * steps
             if v <= 1e-4:
                 v = 0.0
                 obst_since[db, doff] = -1
             st[db, doff] = v
             left = False
             if w > 0.0 and v == 0.0:
-                w2 = w - lt_fall
+                w2 = w - lt_fall * steps
                 if w2 <= 1e-4:
                     w2 = 0.0
                 if w >= occ_thr > w2:
@@ -461,6 +475,7 @@ class LayeredMap:
         fall = lay.tick / lay.st_fall_s
         lt_fall = lay.tick / lay.lt_fall_s
         forget_ticks = max(1, int(round(lay.st_forget_s / lay.tick)))
+        max_gap = max(1, int(round(lay.max_gap_s / lay.tick)))
         pc = self.cfg.projection
         k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, self.resolution)
         record_all = self.history_every > 0 and self.tick_index % self.history_every == 0
@@ -474,9 +489,9 @@ class LayeredMap:
                 self._tb_block, self._tb_off, n_tb, start,
                 self.O.block_coords, self.O.data["logodds"],
                 d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"], d.data["last_obs"],
-                d.data["obst_since"], d.data["free_since"],
+                d.data["last_seen"], d.data["obst_since"], d.data["free_since"],
                 self._near, self._near_i0, self._near_j0, lay.static_margin_cells,
-                rise, fall, lt_fall, pc.occupied_thresh, k_lo, k_hi, self.tick_index, record_all,
+                rise, fall, lt_fall, pc.occupied_thresh, k_lo, k_hi, self.tick_index, max_gap, record_all,
                 ev.tr, ev.tr_meta, ev.hist_i, ev.hist_v, ev.hist_meta, counters,
             )  # fmt: skip
             if start == TICK_DONE:
