@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from mapfactory import write_trinary
 
 from ltmap_cli.analysis import cell_to_world, load_grid, project_voxels, world_to_cell
 from ltmap_cli.analysis.diff import align, diff_maps, diff_voxels
@@ -17,26 +17,6 @@ from ltmap_cli.errors import InputError, MapFileError
 from ltmap_cli.io.mapfile import GridMap
 
 A_ = 0.05 * 0.05  # m^2 of a 0.05 m cell
-
-
-def write_trinary(path: Path, data: np.ndarray, resolution: float = 0.05, origin=(0.0, 0.0, 0.0)) -> Path:
-    """Write a map_server trinary map by hand (row 0 of ``data`` = bottom): occupied 0, free 254,
-    unknown 205 in a P5 PGM, top row first."""
-    data = np.asarray(data)
-    pix = np.full(data.shape, 205, dtype=np.uint8)
-    pix[data == 0] = 254
-    pix[data == 100] = 0
-    pix = pix[::-1]
-    h, w = pix.shape
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pgm = path.with_suffix(".pgm")
-    pgm.write_bytes(b"P5\n%d %d\n255\n" % (w, h) + pix.tobytes())
-    path.write_text(
-        f"image: {pgm.name}\nmode: trinary\nresolution: {resolution}\n"
-        f"origin: [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\nnegate: 0\n"
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
-    )
-    return path
 
 
 def base_map() -> np.ndarray:

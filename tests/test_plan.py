@@ -6,11 +6,11 @@ from __future__ import annotations
 import heapq
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 from click.testing import CliRunner
+from mapfactory import write_trinary
 
 from ltmap_cli.analysis import cell_to_world
 from ltmap_cli.analysis.planner import blocked_grid, inflate, plan_on_grid, plan_path
@@ -20,25 +20,6 @@ from ltmap_cli.io.mapfile import GridMap
 
 S2 = math.sqrt(2.0)
 RES = 0.05
-
-
-def write_trinary(path: Path, data: np.ndarray, resolution: float = RES, origin=(0.0, 0.0, 0.0)) -> Path:
-    """A hand-written map_server trinary map (row 0 of ``data`` = bottom)."""
-    data = np.asarray(data)
-    pix = np.full(data.shape, 205, dtype=np.uint8)
-    pix[data == 0] = 254
-    pix[data == 100] = 0
-    pix = pix[::-1]
-    h, w = pix.shape
-    path.parent.mkdir(parents=True, exist_ok=True)
-    pgm = path.with_suffix(".pgm")
-    pgm.write_bytes(b"P5\n%d %d\n255\n" % (w, h) + pix.tobytes())
-    path.write_text(
-        f"image: {pgm.name}\nmode: trinary\nresolution: {resolution}\n"
-        f"origin: [{origin[0]!r}, {origin[1]!r}, {origin[2]!r}]\nnegate: 0\n"
-        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
-    )
-    return path
 
 
 def xy(row: int, col: int, origin=(0.0, 0.0), res: float = RES) -> str:
