@@ -170,3 +170,14 @@ def test_plots_of_the_replay_are_valid_pngs(tmp_path):
         assert img.std() > 5  # not a blank canvas
     report = json.loads((out / "report.json").read_text())
     assert set(report["outputs"]["plots"]) == names
+
+
+def test_something_seen_for_less_than_st_rise_s_produces_no_event(tmp_path):
+    # a person standing 5 s where the pillar is, then gone: ST rises to 1/3, never LT, no event
+    log = pillar_log(tmp_path / "person.mcap", present_s=5.0, absent_s=20.0)
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q"])
+    assert r.exit_code == 0, r.output
+    report = json.loads((out / "report.json").read_text())
+    assert [e for e in report["events"]["list"] if in_pillar(e)] == []
+    assert report["events"]["remove_latency_s"]["n"] == 0
