@@ -25,6 +25,9 @@ class SensorConfig:
     ground_tolerance: float = 0.05  # m; returns with |z| <= this clear but do not mark
     clear_no_return: bool = True  # a LaserScan +inf / > range_max beam clears up to max_range
     dedupe_dense: bool = True  # depth images / clouds: one ray per end voxel (OctoMap's discretize)
+    # Hz per depth topic (0: every frame): images closer than 0.9 / rate to the last one used are
+    # not integrated (nor decoded); an approximation for speed, see docs/performance.md
+    depth_max_rate: float = 0.0
 
     @property
     def hit_logodds(self) -> float:
@@ -87,6 +90,8 @@ class MapConfig:
             problems.append(f"map.sensor.prob_miss must be within (0, 0.5), got {s.prob_miss}")
         if not (s.clamp_min_logodds < 0.0 < s.clamp_max_logodds):
             problems.append("map.sensor.clamp_min_logodds < 0 < map.sensor.clamp_max_logodds must hold")
+        if not (s.depth_max_rate >= 0):
+            problems.append(f"map.sensor.depth_max_rate must be >= 0 (0: every frame), got {s.depth_max_rate}")
         if s.depth_max_range <= 0:
             problems.append(f"map.sensor.depth_max_range must be > 0, got {s.depth_max_range}")
         lay = self.layers

@@ -15,6 +15,7 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,6 +29,7 @@ from .raycast import (
     STATUS_NEED_BLOCKS,
     classify_rays,
     dedupe_endpoints,
+    depth_image_rays,
     integrate_kernel,
 )
 
@@ -312,6 +314,70 @@ def _forget_kernel(n_blocks, d_coords, st, lt, last_obs, obst_since, tick_index,
     return n
 
 
+@njit(cache=True)
+def _queue_obstacles(tb_block, tb_off, n_tb, o_coords, d_keys, d_vals, last_obs, tick_index, due, fq_vid, fq_due,
+                     fq_meta):  # fmt: skip
+    """Append the voxels seen as obstacles in this tick (last_obs == tick_index) to the forget
+    queue with ``due`` (the tick they are forgotten at unless seen again). Returns False when the
+    queue must grow first (call again: entries already queued are not repeated)."""
+    n = fq_meta[1]
+    for t in range(fq_meta[2], n_tb):
+        b = tb_block[t]
+        off = tb_off[t]
+        i = (np.int64(o_coords[b, 0]) << BLOCK_BITS) | ((off >> (2 * BLOCK_BITS)) & BLOCK_MASK)
+        j = (np.int64(o_coords[b, 1]) << BLOCK_BITS) | ((off >> BLOCK_BITS) & BLOCK_MASK)
+        k = (np.int64(o_coords[b, 2]) << BLOCK_BITS) | (off & BLOCK_MASK)
+        db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+        if db < 0:
+            continue
+        doff = voxel_offset(i, j, k)
+        if last_obs[db, doff] != tick_index:
+            continue
+        if n >= fq_vid.shape[0]:
+            fq_meta[1] = n
+            fq_meta[2] = t
+            return False
+        fq_vid[n] = np.int64(db) * 512 + doff
+        fq_due[n] = due
+        n += 1
+    fq_meta[1] = n
+    fq_meta[2] = 0
+    return True
+
+
+@njit(cache=True)
+def _forget_due(fq_vid, fq_due, fq_meta, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo,
+                k_hi, hist_i, hist_v, hist_meta):  # fmt: skip
+    """``_forget_kernel``'s rule for the queued voxels due by this tick, in the same (block,
+    offset) order, so with the same history records: a voxel with ST > 0 was seen as an obstacle
+    at ``last_obs`` and queued then, due at ``last_obs + forget_ticks``, the first tick the rule
+    can apply to it. Cost per tick: the voxels due, not the map. Returns the number forgotten, or
+    -1 when the history buffer must grow first (call again)."""
+    head, tail = fq_meta[0], fq_meta[1]
+    end = head
+    while end < tail and fq_due[end] <= tick_index:
+        end += 1
+    if end == head:
+        return 0
+    vids = np.unique(fq_vid[head:end])  # sorted: block, then offset, as the full scan visits them
+    n = 0
+    for q in range(vids.shape[0]):
+        vid = vids[q]
+        b = vid >> 9
+        o = vid & 511
+        if st[b, o] > 0.0 and tick_index - last_obs[b, o] >= forget_ticks:
+            k = np.int64(d_coords[b, 2]) * BLOCK + (o & BLOCK_MASK)
+            if k_lo <= k <= k_hi:
+                if hist_meta[0] >= hist_i.shape[0]:
+                    return -1
+                _record_history(hist_i, hist_v, hist_meta, tick_index, vid, 0.0, lt[b, o])
+            st[b, o] = 0.0
+            obst_since[b, o] = -1
+            n += 1
+    fq_meta[0] = end
+    return n
+
+
 class EventLog:
     """What the tick kernel records for the measurements of SPEC 6 (plain growable arrays).
 
@@ -382,6 +448,12 @@ class LayeredMap:
         self.set_static(static)
         self.events = EventLog()
         self.history_every = 5  # ticks between ST / LT history samples (0: transitions only)
+        self._local = threading.local()  # per-thread scratch of depth_rays
+        # forget queue (ST forgetting without scanning the map): voxel ids (D block * 512 + offset)
+        # in due-tick order; meta = [head, tail, resume index of _queue_obstacles]
+        self._fq_vid = np.empty(1 << 16, dtype=np.int64)
+        self._fq_due = np.empty(1 << 16, dtype=np.int32)
+        self._fq_meta = np.zeros(3, dtype=np.int64)
 
     # -- static layer -------------------------------------------------------------------------
     def set_static(self, static: StaticGrid | None) -> None:
@@ -399,6 +471,94 @@ class LayeredMap:
             self._near, self._near_i0, self._near_j0 = static.near_top(m)
 
     # -- sensor integration -------------------------------------------------------------------
+    def _footprint(self, robot_pose):
+        rc = self.cfg.robot
+        if robot_pose is not None:
+            T = np.asarray(robot_pose, dtype=np.float64)
+            R, t = T[:3, :3], T[:3, 3]
+            fp_inv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
+            use_fp = True
+        else:
+            fp_inv = np.zeros((3, 4))
+            use_fp = False
+        return (fp_inv, np.asarray(rc.footprint_min, dtype=np.float64),
+                np.asarray(rc.footprint_max, dtype=np.float64), use_fp)  # fmt: skip
+
+    def rays(
+        self,
+        origin,
+        points,
+        returns=None,
+        max_range: float = 0.0,
+        robot_pose: np.ndarray | None = None,
+        dedupe: bool = False,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The rays ``integrate`` would cast for this frame: (ends (N, 3), kind (N,)). Reads no
+        map state, so it may run in another thread than ``integrate_rays``."""
+        origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
+        pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+        if returns is None:
+            rets = np.ones(len(pts), dtype=np.bool_)
+        else:
+            rets = np.ascontiguousarray(returns, dtype=np.bool_).reshape(-1)
+            if len(rets) != len(pts):
+                raise CoreError(f"integrate: {len(pts)} points but {len(rets)} return flags")
+        fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
+        ends, kind = classify_rays(
+            origin, pts, rets, float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max,
+            use_fp,
+        )  # fmt: skip
+        if dedupe:
+            dedupe_endpoints(ends, kind, 1.0 / self.resolution)
+        return ends, kind
+
+    def depth_rays(
+        self,
+        depth: np.ndarray,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        T: np.ndarray,
+        max_range: float,
+        robot_pose: np.ndarray | None = None,
+        dedupe: bool = True,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """The rays of one depth image, fused in one kernel: (ends (M, 3), kind (M,)).
+
+        ``depth``: raw (H, W) pixels, uint16 millimetres (0 invalid) or float32 metres (NaN, <= 0
+        invalid), native byte order; ``T``: 4x4 optical frame -> fixed frame. Gives bit for bit the
+        rays that ``integrate(T[:3, 3], transform_points(T, depth_to_points(metres, ...)), None,
+        max_range, robot_pose, dedupe)`` casts (without the dropped ones). Reads no map state, so
+        it may run in another thread than ``integrate_rays``."""
+        if not depth.dtype.isnative:
+            depth = depth.astype(depth.dtype.newbyteorder("="))
+        if depth.dtype == np.uint16:
+            unit_mm = True
+        elif depth.dtype == np.float32:
+            unit_mm = False
+        else:
+            raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
+        h, w = depth.shape
+        table, used = self._scratch(h * w)
+        fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
+        return depth_image_rays(
+            depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(T, dtype=np.float64),
+            float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
+            bool(dedupe), 1.0 / self.resolution, table, used,
+        )  # fmt: skip
+
+    def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """Per-thread dedupe table (all -1 between calls) and slot list for ``depth_image_rays``."""
+        have = getattr(self._local, "scratch", None)
+        if have is None or len(have[1]) < n:
+            cap = 16
+            while cap < 2 * n:
+                cap *= 2
+            have = (np.full(cap, -1, dtype=np.int64), np.empty(n, dtype=np.int64))
+            self._local.scratch = have
+        return have
+
     def integrate(
         self,
         origin,
@@ -416,30 +576,13 @@ class LayeredMap:
         fixed transform, for the footprint box (None: no footprint test); dedupe: cast one ray
         per end voxel (dense depth images and clouds; OctoMap's ``discretize``).
         """
+        ends, kind = self.rays(origin, points, returns, max_range, robot_pose, dedupe)
+        return self.integrate_rays(origin, ends, kind)
+
+    def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
+        """Fuse rays from ``rays`` or ``depth_rays`` into O (the stateful half of ``integrate``)."""
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
-        pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
-        if returns is None:
-            rets = np.ones(len(pts), dtype=np.bool_)
-        else:
-            rets = np.ascontiguousarray(returns, dtype=np.bool_).reshape(-1)
-            if len(rets) != len(pts):
-                raise CoreError(f"integrate: {len(pts)} points but {len(rets)} return flags")
         sc = self.cfg.sensor
-        rc = self.cfg.robot
-        if robot_pose is not None:
-            T = np.asarray(robot_pose, dtype=np.float64)
-            R, t = T[:3, :3], T[:3, 3]
-            fp_inv = np.hstack([R.T, (-R.T @ t)[:, None]])
-            use_fp = True
-        else:
-            fp_inv = np.zeros((3, 4))
-            use_fp = False
-        ends, kind = classify_rays(
-            origin, pts, rets, float(max_range), float(sc.ground_tolerance), fp_inv,
-            np.asarray(rc.footprint_min, dtype=np.float64), np.asarray(rc.footprint_max, dtype=np.float64), use_fp,
-        )  # fmt: skip
-        if dedupe:
-            dedupe_endpoints(ends, kind, 1.0 / self.resolution)
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         phase, start = 0, 0
@@ -499,11 +642,18 @@ class LayeredMap:
             if self.D.n_blocks >= self.D.max_blocks:
                 self.D.grow()
             ev.grow()
+        d = self.D
+        while not _queue_obstacles(
+            self._tb_block, self._tb_off, n_tb, self.O.block_coords, d.table_keys, d.table_vals,
+            d.data["last_obs"], self.tick_index, self.tick_index + forget_ticks, self._fq_vid, self._fq_due,
+            self._fq_meta,
+        ):  # fmt: skip
+            self._grow_forget_queue()
         while True:
-            d = self.D
-            forgotten = _forget_kernel(
-                d.n_blocks, d.block_coords, d.data["st"], d.data["lt"], d.data["last_obs"], d.data["obst_since"],
-                self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v, ev.hist_meta,
+            forgotten = _forget_due(
+                self._fq_vid, self._fq_due, self._fq_meta, d.block_coords, d.data["st"], d.data["lt"],
+                d.data["last_obs"], d.data["obst_since"], self.tick_index, forget_ticks, k_lo, k_hi,
+                ev.hist_i, ev.hist_v, ev.hist_meta,
             )  # fmt: skip
             if forgotten >= 0:
                 break
@@ -521,6 +671,37 @@ class LayeredMap:
         self._tb_meta[0] = 0
         self._tick_first = self.frame_id + 1
         return result
+
+    def _grow_forget_queue(self) -> None:
+        """Drop the queue's consumed head, and double it when still more than half full."""
+        head, tail = int(self._fq_meta[0]), int(self._fq_meta[1])
+        live = tail - head
+        cap = len(self._fq_vid)
+        new_cap = cap * 2 if live > cap // 2 else cap
+        vid = np.empty(new_cap, dtype=np.int64)
+        due = np.empty(new_cap, dtype=np.int32)
+        vid[:live] = self._fq_vid[head:tail]
+        due[:live] = self._fq_due[head:tail]
+        self._fq_vid, self._fq_due = vid, due
+        self._fq_meta[0] = 0
+        self._fq_meta[1] = live
+
+    def _seed_forget_queue(self) -> None:
+        """Queue every voxel with ST > 0 of a loaded state at ``last_obs + forget_ticks`` (the
+        queue otherwise learns them when they are seen)."""
+        lay = self.cfg.layers
+        forget_ticks = max(1, int(round(lay.st_forget_s / lay.tick)))
+        st = self.D.channel("st")
+        b, o = np.nonzero(st > 0)
+        due = self.D.channel("last_obs")[b, o].astype(np.int64) + forget_ticks
+        order = np.argsort(due, kind="stable")
+        n = len(order)
+        cap = max(1 << 16, 1 << int(np.ceil(np.log2(max(2 * n, 1)))))
+        self._fq_vid = np.empty(cap, dtype=np.int64)
+        self._fq_due = np.empty(cap, dtype=np.int32)
+        self._fq_vid[:n] = (b.astype(np.int64) * 512 + o)[order]
+        self._fq_due[:n] = np.clip(due[order], -(2**31), 2**31 - 1)
+        self._fq_meta[:] = (0, n, 0)
 
     # -- long-term seeds ----------------------------------------------------------------------
     def seed_long_term(self, keys: np.ndarray, values) -> None:
@@ -607,6 +788,7 @@ class LayeredMap:
         self.tick_index = int(arrays["tick_index"])
         self._tick_first = self.frame_id + 1
         self._tb_meta[0] = 0
+        self._seed_forget_queue()
 
 
 __all__ = [

@@ -33,7 +33,28 @@ STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True, inline="always")
+def _classify_one(ox, oy, oz, px, py, pz, ret, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
+    """Kind and end point actually used of one finite end point (the rules of ``classify_rays``)."""
+    k = RAY_HIT if ret else RAY_CLEAR
+    dx, dy, dz = px - ox, py - oy, pz - oz
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    if max_range > 0.0 and length > max_range:
+        s = max_range / length
+        px, py, pz = ox + dx * s, oy + dy * s, oz + dz * s
+        k = RAY_CLEAR
+    if k == RAY_HIT and ground_tol >= 0.0 and abs(pz) <= ground_tol:
+        k = RAY_CLEAR
+    if k == RAY_HIT and use_fp:
+        lx = fp_inv[0, 0] * px + fp_inv[0, 1] * py + fp_inv[0, 2] * pz + fp_inv[0, 3]
+        ly = fp_inv[1, 0] * px + fp_inv[1, 1] * py + fp_inv[1, 2] * pz + fp_inv[1, 3]
+        lz = fp_inv[2, 0] * px + fp_inv[2, 1] * py + fp_inv[2, 2] * pz + fp_inv[2, 3]
+        if fp_min[0] <= lx <= fp_max[0] and fp_min[1] <= ly <= fp_max[1] and fp_min[2] <= lz <= fp_max[2]:
+            k = RAY_CLEAR
+    return k, px, py, pz
+
+
+@njit(cache=True, nogil=True)
 def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
     """Per end point: (end point actually used (N, 3), kind (N,) int8).
 
@@ -43,29 +64,17 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
     n = points.shape[0]
     ends = np.empty((n, 3), dtype=np.float64)
     kind = np.empty(n, dtype=np.int8)
+    ox, oy, oz = origin[0], origin[1], origin[2]
     for i in range(n):
         px, py, pz = points[i, 0], points[i, 1], points[i, 2]
         if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
             kind[i] = RAY_SKIP
-            ends[i, 0] = origin[0]
-            ends[i, 1] = origin[1]
-            ends[i, 2] = origin[2]
+            ends[i, 0] = ox
+            ends[i, 1] = oy
+            ends[i, 2] = oz
             continue
-        k = RAY_HIT if returns[i] else RAY_CLEAR
-        dx, dy, dz = px - origin[0], py - origin[1], pz - origin[2]
-        length = np.sqrt(dx * dx + dy * dy + dz * dz)
-        if max_range > 0.0 and length > max_range:
-            s = max_range / length
-            px, py, pz = origin[0] + dx * s, origin[1] + dy * s, origin[2] + dz * s
-            k = RAY_CLEAR
-        if k == RAY_HIT and ground_tol >= 0.0 and abs(pz) <= ground_tol:
-            k = RAY_CLEAR
-        if k == RAY_HIT and use_fp:
-            lx = fp_inv[0, 0] * px + fp_inv[0, 1] * py + fp_inv[0, 2] * pz + fp_inv[0, 3]
-            ly = fp_inv[1, 0] * px + fp_inv[1, 1] * py + fp_inv[1, 2] * pz + fp_inv[1, 3]
-            lz = fp_inv[2, 0] * px + fp_inv[2, 1] * py + fp_inv[2, 2] * pz + fp_inv[2, 3]
-            if fp_min[0] <= lx <= fp_max[0] and fp_min[1] <= ly <= fp_max[1] and fp_min[2] <= lz <= fp_max[2]:
-                k = RAY_CLEAR
+        k, px, py, pz = _classify_one(ox, oy, oz, px, py, pz, returns[i], max_range, ground_tol, fp_inv, fp_min,
+                                      fp_max, use_fp)  # fmt: skip
         kind[i] = k
         ends[i, 0] = px
         ends[i, 1] = py
@@ -73,7 +82,7 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
     return ends, kind
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def integrate_kernel(
     origin, ends, kind, inv_res, res,
     table_keys, table_vals, block_coords, meta, logodds, stamp,
@@ -224,7 +233,7 @@ def integrate_kernel(
     return STATUS_DONE, 1, n
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def dedupe_endpoints(ends, kind, inv_res):
     """Keep one ray per (end voxel, kind): later duplicates become RAY_SKIP (in place).
 
@@ -259,3 +268,99 @@ def dedupe_endpoints(ends, kind, inv_res):
                 break
             s = (s + 1) & mask
     return dropped
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _dedupe_key(ex, ey, ez, kd, inv_res):
+    i = np.int64(np.floor(ex * inv_res)) + (1 << 20)
+    j = np.int64(np.floor(ey * inv_res)) + (1 << 20)
+    k = np.int64(np.floor(ez * inv_res)) + (1 << 20)
+    return ((i << 42) | (j << 21) | k) * 2 + (1 if kd == RAY_HIT else 0)
+
+
+@njit(cache=True, nogil=True)
+def depth_image_rays(
+    depth, unit_mm, fx, fy, cx, cy, T,
+    max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp,
+    dedupe, inv_res, table, used,
+):  # fmt: skip
+    """One depth image straight to the rays ``integrate_kernel`` casts: (ends (M, 3), kind (M,)).
+
+    Fuses ``depth_metres`` + ``depth_to_points`` + ``transform_points`` + ``classify_rays`` +
+    ``dedupe_endpoints`` with the same arithmetic in the same order, so the rays are bit for bit
+    those of the separate steps (minus the RAY_SKIP entries, which ``integrate_kernel`` ignores).
+
+    depth: (H, W) raw pixels, uint16 millimetres (``unit_mm``, 0 invalid) or float32 metres (NaN /
+    <= 0 invalid); T: 4x4 optical frame -> fixed frame. ``table`` (power-of-two size >= 2 H W,
+    all -1) and ``used`` (>= H W) are scratch space for the per-voxel dedupe; the table is left
+    all -1 again on return.
+    """
+    h, w = depth.shape
+    ends = np.empty((h * w, 3), dtype=np.float64)
+    kind = np.empty(h * w, dtype=np.int8)
+    ox, oy, oz = T[0, 3], T[1, 3], T[2, 3]
+    mask = table.shape[0] - 1
+    m = 0
+    n_used = 0
+    mm = np.float32(0.001)
+    for v in range(h):
+        for u in range(w):
+            raw = depth[v, u]
+            if unit_mm:
+                if raw == 0:
+                    continue
+                z32 = np.float32(raw) * mm
+            else:
+                z32 = np.float32(raw)
+                if not (np.isfinite(z32) and z32 > 0):
+                    continue
+            z = np.float64(z32)
+            x = (np.float64(u) - cx) * z / fx
+            y = (np.float64(v) - cy) * z / fy
+            px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+            py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+            pz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+            if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
+                continue
+            kd, px, py, pz = _classify_one(ox, oy, oz, px, py, pz, True, max_range, ground_tol, fp_inv, fp_min,
+                                           fp_max, use_fp)  # fmt: skip
+            if dedupe:
+                packed = _dedupe_key(px, py, pz, kd, inv_res)
+                hh = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
+                s = np.int64((hh ^ (hh >> np.uint64(31))) & np.uint64(mask))
+                dup = False
+                while True:
+                    t = table[s]
+                    if t == packed:
+                        dup = True
+                        break
+                    if t == -1:
+                        table[s] = packed
+                        used[n_used] = s
+                        n_used += 1
+                        break
+                    s = (s + 1) & mask
+                if dup:
+                    continue
+            ends[m, 0] = px
+            ends[m, 1] = py
+            ends[m, 2] = pz
+            kind[m] = kd
+            m += 1
+    for q in range(n_used):
+        table[used[q]] = -1
+    return ends[:m].copy(), kind[:m].copy()
+
+
+@njit(cache=True, nogil=True)
+def transform_points_kernel(T, points):
+    """``T`` (4x4) applied to points (N, 3), row by row as ``T[r,0] x + T[r,1] y + T[r,2] z + T[r,3]``
+    (the arithmetic of ``depth_image_rays`` and ``core.sensors.transform_points``)."""
+    n = points.shape[0]
+    out = np.empty((n, 3), dtype=np.float64)
+    for i in range(n):
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        out[i, 0] = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
+        out[i, 1] = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
+        out[i, 2] = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+    return out

@@ -53,6 +53,15 @@ def depth_to_points(
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 rigid transform to points (N, 3)."""
+    """Apply a 4x4 rigid transform to points (N, 3).
+
+    Row by row as ``T[r,0] x + T[r,1] y + T[r,2] z + T[r,3]``, summed left to right (not a BLAS
+    matmul, whose summation order is not fixed): the same numbers as the fused depth kernel
+    ``core.raycast.depth_image_rays``."""
     T = np.asarray(T, dtype=np.float64)
-    return np.asarray(points, dtype=np.float64) @ T[:3, :3].T + T[:3, 3]
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    x, y, z = p[:, 0], p[:, 1], p[:, 2]
+    out = np.empty((len(p), 3), dtype=np.float64)
+    for r in range(3):
+        out[:, r] = T[r, 0] * x + T[r, 1] * y + T[r, 2] * z + T[r, 3]
+    return out

@@ -1,0 +1,98 @@
+"""ST forgetting from a due-tick queue (issue 7: tick cost must not grow with the map) forgets
+exactly what the full scan of every D block (``_forget_kernel``) forgets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ltmap_cli.config import Config
+from ltmap_cli.core.layers import LayeredMap, _forget_kernel
+from ltmap_cli.core.projection import band_k_range
+from ltmap_cli.replay import Replay, ReplayRequest
+
+HOUSE = Path(__file__).resolve().parent.parent / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
+
+
+def _check_nothing_left(lmap: LayeredMap) -> int:
+    """Run the full-scan rule after a tick: it must find nothing more to forget."""
+    lay = lmap.cfg.layers
+    forget_ticks = max(1, int(round(lay.st_forget_s / lay.tick)))
+    k_lo, k_hi = band_k_range(lmap.cfg.projection.z_min, lmap.cfg.projection.z_max, lmap.resolution)
+    d = lmap.D
+    st = d.data["st"].copy()
+    obst = d.data["obst_since"].copy()
+    hist_i = np.zeros((1 << 20, 2), np.int32)
+    hist_v = np.zeros((1 << 20, 2), np.float32)
+    meta = np.zeros(1, np.int64)
+    n = _forget_kernel(d.n_blocks, d.block_coords, st, d.data["lt"], d.data["last_obs"], obst, lmap.tick_index - 1,
+                       forget_ticks, k_lo, k_hi, hist_i, hist_v, meta)  # fmt: skip
+    assert n == 0, f"tick {lmap.tick_index - 1}: the queue missed {n} voxels to forget"
+    return int((d.channel("st") > 0).sum())
+
+
+def test_queue_forgets_what_the_full_scan_forgets():
+    rng = np.random.default_rng(5)
+    cfg = Config().map
+    cfg.layers.st_forget_s = 1.0  # 5 ticks
+    lmap = LayeredMap(cfg)
+    forgotten = 0
+    for tick in range(60):
+        for _ in range(2):
+            origin = np.array([0.0, 0.0, 0.5])
+            pts = rng.uniform([-2, -2, 0.1], [2, 2, 1.4], size=(200, 3))
+            if tick % 7 < 3:  # a block of ticks seen, then unseen
+                pts[:50] = [1.02, 1.03, 0.77] + rng.normal(0, 0.02, size=(50, 3))
+            lmap.integrate(origin, pts)
+        r = lmap.end_tick()
+        forgotten += r.st_forgotten
+        _check_nothing_left(lmap)
+    assert forgotten > 0
+
+
+def test_queue_survives_state_reload():
+    rng = np.random.default_rng(6)
+    cfg = Config().map
+    cfg.layers.st_forget_s = 0.6
+    a = LayeredMap(cfg)
+    for _ in range(4):
+        a.integrate([0, 0, 0.5], rng.uniform([-1, -1, 0.2], [1, 1, 1.0], size=(300, 3)))
+        a.end_tick()
+    b = LayeredMap(cfg)
+    b.load_state_arrays(a.state_arrays())
+    assert (b.D.channel("st") > 0).any()
+    for _ in range(6):
+        b.end_tick()
+        _check_nothing_left(b)
+    assert not (b.D.channel("st") > 0).any()
+
+
+def test_replay_with_fast_forgetting_checked_every_tick(tmp_path):
+    if not HOUSE.exists():
+        pytest.skip("house sample missing")
+    cfg = Config()
+    cfg.replay.plots = False
+    cfg.map.layers.st_forget_s = 2.0
+    run = Replay(cfg, ReplayRequest([HOUSE], tmp_path))
+    checked = []
+    real_run = run.run
+
+    def patched():
+        lmap_cls_end_tick = LayeredMap.end_tick
+
+        def end_tick(self):
+            r = lmap_cls_end_tick(self)
+            _check_nothing_left(self)
+            checked.append(r.st_forgotten)
+            return r
+
+        LayeredMap.end_tick = end_tick
+        try:
+            return real_run()
+        finally:
+            LayeredMap.end_tick = lmap_cls_end_tick
+
+    patched()
+    assert len(checked) > 100 and sum(checked) > 0
