@@ -10,6 +10,8 @@ Everything is vectorized with numpy; there is no Python loop per point, beam or 
 
 from __future__ import annotations
 
+import struct
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -146,10 +148,9 @@ def depth_metres(msg: Any, where: str) -> np.ndarray:
     return depth
 
 
-def decode_depth(msg: Any, info: Any, topic: str, where: str) -> DepthFrame:
-    depth = depth_metres(msg, where)
+def _checked_intrinsics(info: Any, shape: tuple[int, int], where: str) -> CameraIntrinsics:
     intr = intrinsics(info)
-    h, w = depth.shape
+    h, w = shape
     if (intr.width, intr.height) == (0, 0):
         intr = CameraIntrinsics(w, h, intr.fx, intr.fy, intr.cx, intr.cy)
     elif (intr.width, intr.height) != (w, h):
@@ -158,6 +159,12 @@ def decode_depth(msg: Any, info: Any, topic: str, where: str) -> DepthFrame:
     if intr.fx <= 0 or intr.fy <= 0:
         raise LogReadError(f"CameraInfo for depth Image {where} has focal lengths fx={intr.fx}, fy={intr.fy}; "
                            f"the camera is uncalibrated and its depth cannot be placed")
+    return intr
+
+
+def decode_depth(msg: Any, info: Any, topic: str, where: str) -> DepthFrame:
+    depth = depth_metres(msg, where)
+    intr = _checked_intrinsics(info, depth.shape, where)
     h0 = msg.header
     return DepthFrame(stamp_ns=stamp_ns(h0.stamp), frame_id=frame_name(h0.frame_id), depth_m=depth,
                       intrinsics=intr, topic=topic)
@@ -179,3 +186,210 @@ def decode_odometry(msg: Any) -> OdometrySample:
     return OdometrySample(stamp_ns=stamp_ns(msg.header.stamp), parent=frame_name(msg.header.frame_id),
                           child=frame_name(msg.child_frame_id), translation=(float(p.x), float(p.y), float(p.z)),
                           rotation_xyzw=(float(q.x), float(q.y), float(q.z), float(q.w)))
+
+
+# ----------------------------------------------------------------------------- fast CDR path
+# The generic deserializers build every field in Python (mcap_ros2: one call per number). For the
+# types a replay reads at high rate, the CDR bytes (XCDR1 little endian: the ROS 2 default) are
+# read here directly, into light message objects with the fields the decoders above use, which
+# then build the frames: the same frames, the same checks and errors. Anything unexpected (big
+# endian, short buffer, odd lengths) raises ``_NotFast`` and the caller falls back to the
+# generic deserializer, so the fast path can only be faster, never different.
+
+
+class _NotFast(Exception):
+    pass
+
+
+class _Obj:
+    """A message (or sub-message) with plain attributes."""
+
+    def __init__(self, **kw: Any):
+        self.__dict__.update(kw)
+
+
+_U32 = struct.Struct("<I")
+_I32U32 = struct.Struct("<iI")
+_F32x7 = struct.Struct("<7f")
+_F64x3 = struct.Struct("<3d")
+_F64x4 = struct.Struct("<4d")
+_F64x9 = struct.Struct("<9d")
+
+
+class _Cdr:
+    __slots__ = ("buf", "pos", "end")
+
+    def __init__(self, buf: bytes | memoryview):
+        if len(buf) < 4 or buf[0] != 0 or buf[1] != 1:  # CDR_LE (plain or parameter list: not ours)
+            raise _NotFast
+        self.buf = buf
+        self.pos = 4
+        self.end = len(buf)
+
+    def align(self, n: int) -> None:
+        self.pos += (-(self.pos - 4)) % n
+
+    def take(self, st: struct.Struct, align: int) -> tuple:
+        self.align(align)
+        p = self.pos
+        if p + st.size > self.end:
+            raise _NotFast
+        self.pos = p + st.size
+        return st.unpack_from(self.buf, p)
+
+    def u32(self) -> int:
+        return self.take(_U32, 4)[0]
+
+    def u8(self) -> int:
+        if self.pos >= self.end:
+            raise _NotFast
+        v = self.buf[self.pos]
+        self.pos += 1
+        return v
+
+    def string(self) -> str:
+        n = self.u32()
+        p = self.pos
+        if n == 0 or p + n > self.end:
+            raise _NotFast
+        self.pos = p + n
+        return bytes(self.buf[p : p + n - 1]).decode("utf-8")
+
+    def header(self) -> _Obj:
+        sec, nanosec = self.take(_I32U32, 4)
+        return _Obj(stamp=_Obj(sec=sec, nanosec=nanosec), frame_id=self.string())
+
+    def array(self, dtype: str, itemsize: int) -> np.ndarray:
+        n = self.u32()
+        self.align(itemsize)
+        p = self.pos
+        if p + n * itemsize > self.end:
+            raise _NotFast
+        self.pos = p + n * itemsize
+        return np.frombuffer(self.buf, dtype=dtype, count=n, offset=p)
+
+
+def cdr_stamp_ns(data: bytes | memoryview) -> int:
+    """The header stamp of a CDR message that starts with a std_msgs/Header (raises _NotFast)."""
+    sec, nanosec = _Cdr(data).take(_I32U32, 4)
+    return sec * 1_000_000_000 + nanosec
+
+
+def cdr_scan(data: bytes | memoryview) -> _Obj:
+    c = _Cdr(data)
+    h = c.header()
+    amin, amax, inc, tinc, stime, rmin, rmax = c.take(_F32x7, 4)
+    ranges = c.array("<f4", 4)
+    return _Obj(header=h, angle_min=amin, angle_max=amax, angle_increment=inc, range_min=rmin, range_max=rmax,
+                ranges=ranges)
+
+
+def cdr_image(data: bytes | memoryview) -> _Obj:
+    c = _Cdr(data)
+    h = c.header()
+    height, width = c.u32(), c.u32()
+    enc = c.string()
+    big = c.u8()
+    step = c.u32()
+    n = c.u32()
+    p = c.pos
+    if p + n > c.end:
+        raise _NotFast
+    return _Obj(header=h, height=height, width=width, encoding=enc, is_bigendian=big, step=step,
+                data=np.frombuffer(data, dtype=np.uint8, count=n, offset=p))
+
+
+def cdr_camera_info(data: bytes | memoryview) -> _Obj:
+    c = _Cdr(data)
+    h = c.header()
+    height, width = c.u32(), c.u32()
+    c.string()  # distortion_model
+    c.array("<f8", 8)  # d
+    k = c.take(_F64x9, 8)
+    return _Obj(header=h, height=height, width=width, k=k)
+
+
+def cdr_tf(data: bytes | memoryview) -> _Obj:
+    c = _Cdr(data)
+    n = c.u32()
+    if n > c.end:
+        raise _NotFast
+    out = []
+    for _ in range(n):
+        h = c.header()
+        child = c.string()
+        tx, ty, tz = c.take(_F64x3, 8)
+        qx, qy, qz, qw = c.take(_F64x4, 8)
+        out.append(_Obj(header=h, child_frame_id=child,
+                        transform=_Obj(translation=_Obj(x=tx, y=ty, z=tz), rotation=_Obj(x=qx, y=qy, z=qz, w=qw))))
+    return _Obj(transforms=out)
+
+
+def cdr_odometry(data: bytes | memoryview) -> _Obj:
+    c = _Cdr(data)
+    h = c.header()
+    child = c.string()
+    px, py, pz = c.take(_F64x3, 8)
+    qx, qy, qz, qw = c.take(_F64x4, 8)
+    return _Obj(header=h, child_frame_id=child,
+                pose=_Obj(pose=_Obj(position=_Obj(x=px, y=py, z=pz), orientation=_Obj(x=qx, y=qy, z=qz, w=qw))))
+
+
+CDR_PARSERS = {
+    "sensor_msgs/msg/LaserScan": cdr_scan,
+    "sensor_msgs/msg/Image": cdr_image,
+    "sensor_msgs/msg/CameraInfo": cdr_camera_info,
+    "tf2_msgs/msg/TFMessage": cdr_tf,
+    "nav_msgs/msg/Odometry": cdr_odometry,
+}
+
+
+@dataclass(frozen=True)
+class RawDepthFrame:
+    """A depth image as recorded (what the fused depth kernel reads): ``raw`` (H, W) is uint16
+    millimetres (0 invalid) or float32 metres, native byte order, possibly a strided view of the
+    message buffer. ``depth_m`` gives what ``DepthFrame.depth_m`` holds."""
+
+    stamp_ns: int
+    frame_id: str
+    raw: np.ndarray
+    intrinsics: CameraIntrinsics
+    topic: str = ""
+
+    @property
+    def depth_m(self) -> np.ndarray:
+        raw = self.raw
+        if raw.dtype == np.uint16:
+            depth = raw.astype(np.float32) * np.float32(0.001)
+            depth[raw == 0] = np.nan
+        else:
+            depth = raw.astype(np.float32)
+            depth[~(depth > 0) | ~np.isfinite(depth)] = np.nan
+        return depth
+
+
+def depth_raw(msg: Any, where: str) -> np.ndarray:
+    """An Image 16UC1 / 32FC1 as its raw (H, W) pixels in native byte order (checks as
+    ``depth_metres``)."""
+    enc = str(msg.encoding)
+    code = {"16UC1": "u2", "mono16": "u2", "32FC1": "f4"}.get(enc)
+    if code is None:
+        return depth_metres(msg, where)  # raises the encoding error
+    h, w, step = int(msg.height), int(msg.width), int(msg.step)
+    dt = np.dtype((">" if msg.is_bigendian else "<") + code)
+    data = _bytes(msg.data)
+    if h * w and (step < w * dt.itemsize or len(data) < (h - 1) * step + w * dt.itemsize):
+        return depth_metres(msg, where)  # raises the size error
+    if h * w == 0:
+        return np.zeros((h, w), dt.newbyteorder("="))
+    raw = np.ndarray((h, w), dtype=dt, buffer=data, strides=(step, dt.itemsize))
+    return raw if dt.isnative else raw.astype(dt.newbyteorder("="))
+
+
+def decode_depth_raw(msg: Any, info: Any, topic: str, where: str) -> RawDepthFrame:
+    """As ``decode_depth``, keeping the raw pixels (a ``RawDepthFrame``)."""
+    raw = depth_raw(msg, where)
+    intr = _checked_intrinsics(info, raw.shape, where)
+    h0 = msg.header
+    return RawDepthFrame(stamp_ns=stamp_ns(h0.stamp), frame_id=frame_name(h0.frame_id), raw=raw, intrinsics=intr,
+                         topic=topic)

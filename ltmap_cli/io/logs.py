@@ -187,6 +187,7 @@ class LogSet:
         self.allow_truncated = allow_truncated
         self.stats = ReadStats()
         self.skipped: Counter[str] = Counter()
+        self.rate_skipped: Counter[str] = Counter()  # depth images dropped by depth_max_rate, per topic
         self.topics: dict[str, TopicInfo] = {}
         for src in sources:
             for t in src.topics.values():
@@ -250,9 +251,16 @@ class LogSet:
             raise TruncatedLogError(f"log is truncated or corrupt: {self.stats.stopped_at}; to use what was "
                                     f"read before that point, pass --allow-truncated")
 
-    def messages(self, selection: TopicSelection | None = None) -> Iterator[tuple[str, int, Frame]]:
+    def messages(self, selection: TopicSelection | None = None, *, fast: bool = False,
+                 depth_max_rate: float = 0.0) -> Iterator[tuple[str, int, Frame]]:
         """``(topic, log_time_ns, item)`` in log-time order; item is a ScanFrame, CloudFrame,
-        DepthFrame, TfSample (one per transform of a TFMessage) or OdometrySample."""
+        DepthFrame, TfSample (one per transform of a TFMessage) or OdometrySample.
+
+        ``fast``: CDR messages of the high-rate types are read directly (``decode.CDR_PARSERS``;
+        the same frames, anything unusual falls back to the generic deserializer) and depth images
+        come as ``decode.RawDepthFrame`` (raw pixels, no float copy). ``depth_max_rate`` (Hz, 0:
+        off): per depth topic, an image whose header stamp is less than 0.9 / rate after the last
+        image passed on is dropped before it is decoded (counted in ``rate_skipped``)."""
         sel = selection if selection is not None else self.select()
         kinds: dict[str, str] = {}
         for t in sel.scans:
@@ -269,35 +277,79 @@ class LogSet:
             infos_wanted.setdefault(info, []).append(image)
         for info in infos_wanted:
             kinds.setdefault(info, "info")
+        parsers = {t: dec.CDR_PARSERS.get(self.topics[t].msgtype) if fast and t in self.topics else None
+                   for t in kinds}
+        min_gap = int(0.9e9 / depth_max_rate) if depth_max_rate > 0 else 0
+        last_depth: dict[str, int] = {}
         static = set(sel.static_tf)
-        latest_info: dict[str, Any] = {}
+        latest_info: dict[str, Any] = {}  # topic -> (decode, where) not yet decoded, or the message
         for topic, t, decode, where in self.raw(kinds):
             kind = kinds[topic]
-            try:
-                msg = decode()
-            except LogReadError as err:
-                raise LogReadError(f"cannot decode the message {where}: {err}") from None
-            except Exception as err:  # noqa: BLE001 - deserializer errors on damaged data
-                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-                raise LogReadError(f"cannot decode the message {where} ({reason}); the log is corrupt: "
-                                   f"leave this topic out with --scan-topic/--cloud-topic/--depth-topic") from None
+            parser = parsers[topic] if getattr(decode, "encoding", "") == "cdr" else None
             if kind == "info":
-                latest_info[topic] = msg
-            elif kind == "scan":
+                latest_info[topic] = (decode, where, parser)
+                continue
+            if kind == "depth":
+                info_topic = sel.depths[topic]
+                if info_topic not in latest_info:
+                    self.skipped[f"depth image on {topic} before any CameraInfo on {info_topic}"] += 1
+                    continue
+                if min_gap:
+                    stamp = None
+                    if parser is not None:
+                        try:
+                            stamp = dec.cdr_stamp_ns(decode.data)
+                        except dec._NotFast:
+                            stamp = None
+                    msg = None
+                    if stamp is None:
+                        msg = self._decode(decode, where, None)
+                        stamp = dec.stamp_ns(msg.header.stamp)
+                    last = last_depth.get(topic)
+                    if last is not None and stamp < last + min_gap:
+                        self.rate_skipped[topic] += 1
+                        continue
+                    last_depth[topic] = stamp
+                    if msg is None:
+                        msg = self._decode(decode, where, parser)
+                else:
+                    msg = self._decode(decode, where, parser)
+                info = latest_info[info_topic]
+                if isinstance(info, tuple):
+                    info = latest_info[info_topic] = self._decode(*info)
+                if fast:
+                    yield topic, t, dec.decode_depth_raw(msg, info, topic, where)
+                else:
+                    yield topic, t, dec.decode_depth(msg, info, topic, where)
+                continue
+            msg = self._decode(decode, where, parser)
+            if kind == "scan":
                 yield topic, t, dec.decode_scan(msg, topic, where)
             elif kind == "cloud":
                 yield topic, t, dec.decode_cloud(msg, topic, where)
-            elif kind == "depth":
-                info = latest_info.get(sel.depths[topic])
-                if info is None:
-                    self.skipped[f"depth image on {topic} before any CameraInfo on {sel.depths[topic]}"] += 1
-                    continue
-                yield topic, t, dec.decode_depth(msg, info, topic, where)
             elif kind == "tf":
                 for s in dec.decode_tf(msg, static=topic in static):
                     yield topic, t, s
             else:
                 yield topic, t, dec.decode_odometry(msg)
+
+    @staticmethod
+    def _decode(decode: Any, where: str, parser: Any) -> Any:
+        if parser is not None:
+            try:
+                return parser(decode.data)
+            except dec._NotFast:
+                pass
+            except Exception:  # noqa: BLE001 - let the generic deserializer report it
+                pass
+        try:
+            return decode()
+        except LogReadError as err:
+            raise LogReadError(f"cannot decode the message {where}: {err}") from None
+        except Exception as err:  # noqa: BLE001 - deserializer errors on damaged data
+            reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            raise LogReadError(f"cannot decode the message {where} ({reason}); the log is corrupt: "
+                               f"leave this topic out with --scan-topic/--cloud-topic/--depth-topic") from None
 
     def close(self) -> None:
         for s in self.sources:
