@@ -14,11 +14,14 @@ report.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import json
+import queue
 import resource
+import threading
 import time
-from collections import Counter
+from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,10 +34,13 @@ from .core.projection import Projection, project
 from .core.sensors import depth_to_points, scan_to_points, transform_points
 from .errors import InputError, TransformError
 from .io.atomic import write_text_atomic
+from .io.decode import RawDepthFrame
 from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
 
 NS = 1_000_000_000
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
+IN_FLIGHT = 6  # frames whose rays the worker thread may compute ahead of integration
+STAGES = ("read", "tf", "rays", "integrate", "ticks", "projection", "output")
 
 
 @dataclass
@@ -67,6 +73,7 @@ class _Counts:
     frame_ms: dict = field(default_factory=dict)  # topic -> [wall ms per frame]
     stamps: dict = field(default_factory=dict)  # topic -> [header stamps ns] (frame periods)
     tick_ms: list = field(default_factory=list)
+    stage_s: Counter = field(default_factory=Counter)  # stage -> wall s spent in it (see Replay.stages)
 
 
 def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
@@ -98,7 +105,29 @@ def _seed_keys(layer, cfg: Config) -> np.ndarray:
 
 
 class Replay:
-    """One replay run. ``run()`` returns the report (also written to report.json)."""
+    """One replay run. ``run()`` returns the report (also written to report.json).
+
+    Speed (SPEC 8), with results identical to the plain serial path:
+
+    - ``fast`` (default on): CDR messages of the high-rate types are parsed directly and depth
+      images stay raw pixels (``LogSet.messages(fast=True)``); the rays of a depth image come from
+      one fused kernel (``LayeredMap.depth_rays``) instead of points -> transform -> classify ->
+      dedupe. Bit for bit the same rays, so the same map.
+    - ``threads`` (default on): a reader thread reads and decodes the log ahead of the pipeline,
+      and a worker thread computes the rays of the next frames (numba kernels release the GIL)
+      while the main thread integrates the previous ones into O, strictly in order: frames are
+      integrated, and ticks, snapshots and plans happen, in exactly the serial order.
+
+    The report's ``stage_s`` gives the wall time per stage: ``read`` (reading and decoding the
+    log; with the reader thread, the time the pipeline waited for it, and ``read_thread`` its own
+    busy time), ``tf`` (tf buffer and lookups), ``rays`` (points and rays; with the worker, its
+    busy time, and ``rays_wait`` the time integration waited for it), ``integrate`` (ray casting
+    into O), ``ticks`` (tick rules), ``projection`` (P and the virtual scan) and ``output``
+    (snapshots, maps, measurements, replay.mcap).
+    """
+
+    fast: bool = True
+    threads: bool = True
 
     def __init__(self, cfg: Config, request: ReplayRequest, progress: Callable[[Progress], None] | None = None):
         cfg.validate()
@@ -122,6 +151,8 @@ class Replay:
         self._next_map_ns = None
         self._map_dirty = True
         self._p_latest: Projection | None = None
+        self._jobs: deque = deque()
+        self._pool = None
 
     # ------------------------------------------------------------------------------------
     def run(self) -> dict:
@@ -187,10 +218,19 @@ class Replay:
             self._t0: int | None = None
             self._last_progress = 0.0
             self._t_wall0 = t_wall0
+            stage = self.counts.stage_s
+            stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate)
+            reader = _ReaderThread(stream, stage) if self.threads else _TimedIter(stream, stage)
+            if self.threads:
+                from concurrent.futures import ThreadPoolExecutor
+
+                self._pool = ThreadPoolExecutor(1, thread_name_prefix="ltmap-rays")
             try:
-                for topic, log_ns, item in logs.messages(sel):
+                for topic, log_ns, item in reader:
                     if isinstance(item, (TfSample, OdometrySample)):
+                        t0 = time.perf_counter()
                         tf.add(item)
+                        stage["tf"] += time.perf_counter() - t0
                         if self.mcap is not None and isinstance(item, TfSample):
                             self.mcap.write_tf(item.stamp_ns if not item.static else logs.start_ns,
                                                [(item.parent.lstrip("/"), item.child.lstrip("/"), item.translation,
@@ -203,14 +243,19 @@ class Replay:
                     ):
                         self._process(*heapq.heappop(self._pending)[2:])
                     self._report_progress(log_ns)
+                while self._pending:
+                    self._process(*heapq.heappop(self._pending)[2:])
+                self._drain(0)
             finally:
+                reader.close()
+                if self._pool is not None:
+                    self._pool.shutdown(wait=True, cancel_futures=True)
+                    self._pool = None
                 stats = logs.stats
-            while self._pending:
-                self._process(*heapq.heappop(self._pending)[2:])
-            self._report_progress(logs.end_ns, force=True)
             stopped_at = stats.stopped_at
             messages = dict(stats.messages_per_topic)
             not_decoded = dict(getattr(logs, "skipped", {}) or {})
+            rate_skipped = dict(logs.rate_skipped)
             topics_not_used = dict(sel.skipped)
             selected = {"scans": sel.scans, "clouds": sel.clouds, "depth": sel.depths}
 
@@ -223,17 +268,26 @@ class Replay:
                 f"no sensor frames in {', '.join(str(p) for p in req.logs)} on topics "
                 f"{', '.join(sel.sensor_topics) or '(none)'}; check the topics with `ltmap info`"
             )
+        stage = self.counts.stage_s
+        t0 = time.perf_counter()
         lmap.end_tick()  # the last, partial tick
+        t1 = time.perf_counter()
+        stage["ticks"] += t1 - t0
         if self.mcap is not None:
             self._publish_maps(self._last_stamp, force=True)
             self.mcap.close()
         self._snapshot(None)
         wall = time.perf_counter() - t_wall0
+        t2 = time.perf_counter()
+        stage["output"] += t2 - t1
         outputs = self._write_maps(out)
+        t3 = time.perf_counter()
         events, processing = self._measurements(out)
         outputs["events"] = str(out / "events.csv")
         if cfg.replay.plots:
             outputs["plots"] = self._plots(out / "plots")
+        stage["output"] += time.perf_counter() - t3
+        stage["projection"] += t3 - t2  # _write_maps: three projections and their files
         if self.mcap is not None:
             outputs["mcap"] = str(out / "replay.mcap")
             outputs["mcap_messages"] = dict(self.mcap.counts)
@@ -248,12 +302,14 @@ class Replay:
             "frames_used": dict(self.counts.used),
             "frames_skipped": dict(self.counts.skipped),
             "frames_skipped_by_topic": dict(self.counts.skipped_by_topic),
+            "frames_over_depth_max_rate": rate_skipped,
             "frames_without_footprint": self.counts.no_footprint,
             "rays": self.counts.rays,
             "log_start_ns": int(self.log_start),
             "log_duration_s": round(self.log_total_s, 3),
             "wall_time_s": round(wall, 3),
             "speed_vs_real_time": round(self.log_total_s / wall, 2) if wall > 0 else None,
+            "stage_s": {k: round(v, 3) for k, v in sorted(self.counts.stage_s.items())},
             "ticks": lmap.tick_index,
             "stopped_at": stopped_at,
             "peak_memory_mb": round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
@@ -306,18 +362,25 @@ class Replay:
             self._tick_end = stamp + self._tick_ns
             return
         while stamp >= self._tick_end:
+            stage = self.counts.stage_s
             t_tick = time.perf_counter()
             tr = lmap.end_tick()
             if tr.lt_entered or tr.lt_left:
                 self._map_dirty = True
-            self.counts.tick_ms.append((time.perf_counter() - t_tick) * 1e3)
+            t1 = time.perf_counter()
+            self.counts.tick_ms.append((t1 - t_tick) * 1e3)
+            stage["ticks"] += t1 - t_tick
             if self.tracker is not None:
                 self._plan((self._tick_end - self.log_start) / NS)
+                t2 = time.perf_counter()
+                stage["projection"] += t2 - t1
+                t1 = t2
             if self.mcap is not None:
                 self._publish_maps(self._tick_end)
             if self._tick_end - self._t0 >= self._next_snapshot:
                 self._snapshot((self._tick_end - self._t0) / NS)
                 self._next_snapshot += self._snap_ns
+            stage["output"] += time.perf_counter() - t1
             self._tick_end += self._tick_ns
 
     def _plan(self, t_s: float) -> None:
@@ -380,8 +443,9 @@ class Replay:
         self.snapshots.append({"log_time_s": t_s, **paths})
 
     def _process(self, topic: str, item) -> None:
+        """Place a sensor frame (tf lookups, main thread), have its rays computed (worker thread
+        or here) and integrate frames in order."""
         t_start = time.perf_counter()
-        cfg = self.cfg
         if self.fixed_frame is None:
             self._choose_frames()
         if not item.frame_id:
@@ -392,13 +456,26 @@ class Replay:
             self._skip(topic, reason)
             return
         robot, _ = self.tf.try_lookup(self.fixed_frame, self.base_frame, item.stamp_ns)
-        if robot is None:
-            self.counts.no_footprint += 1
-        else:
-            self.robot_xy = (float(robot[0, 3]), float(robot[1, 3]))
-            self.trajectory.append(((item.stamp_ns - self.log_start) / NS, *self.robot_xy))
-        self._advance_ticks(item.stamp_ns)
-        sc = cfg.map.sensor
+        lookup_s = time.perf_counter() - t_start
+        self.counts.stage_s["tf"] += lookup_s
+        if self._pool is None:
+            self._jobs.append((topic, item, T, robot, self._rays(item, T, robot), lookup_s))
+            self._drain(0)
+            return
+        self._jobs.append((topic, item, T, robot, self._pool.submit(self._rays, item, T, robot), lookup_s))
+        self._drain(IN_FLIGHT)
+
+    def _rays(self, item, T: np.ndarray, robot: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:
+        """(ends, kind, seconds) of one frame: what ``LayeredMap.integrate`` would cast. Reads no
+        map state (runs in the worker thread)."""
+        t0 = time.perf_counter()
+        sc = self.cfg.map.sensor
+        lmap = self.lmap
+        if isinstance(item, RawDepthFrame) and self.fast:
+            k = item.intrinsics
+            ends, kind = lmap.depth_rays(item.raw, k.fx, k.fy, k.cx, k.cy, T, sc.depth_max_range, robot,
+                                         dedupe=sc.dedupe_dense)  # fmt: skip
+            return ends, kind, time.perf_counter() - t0
         dedupe = False
         if isinstance(item, ScanFrame):
             pts, rets = scan_to_points(
@@ -406,7 +483,7 @@ class Replay:
                 clear_no_return=sc.clear_no_return,
             )  # fmt: skip
             max_range = float(item.range_max)
-        elif isinstance(item, DepthFrame):
+        elif isinstance(item, (DepthFrame, RawDepthFrame)):
             k = item.intrinsics
             pts = depth_to_points(item.depth_m, k.fx, k.fy, k.cx, k.cy)
             rets = None
@@ -418,17 +495,46 @@ class Replay:
             max_range = sc.depth_max_range
             dedupe = sc.dedupe_dense
         else:  # pragma: no cover - the reader yields only these
-            return
+            raise TypeError(type(item).__name__)
         world = transform_points(T, pts)
-        r = self.lmap.integrate(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
+        ends, kind = lmap.rays(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
+        return ends, kind, time.perf_counter() - t0
+
+    def _drain(self, keep: int) -> None:
+        """Integrate queued frames in order until at most ``keep`` are left (and none whose rays
+        are ready at the head, when the worker runs ahead)."""
+        jobs = self._jobs
+        while jobs and (len(jobs) > keep or (keep and not isinstance(jobs[0][4], tuple) and jobs[0][4].done())):
+            self._consume(*jobs.popleft())
+
+    def _consume(self, topic: str, item, T: np.ndarray, robot: np.ndarray | None, rays, lookup_s: float) -> None:
+        stage = self.counts.stage_s
+        if robot is None:
+            self.counts.no_footprint += 1
+        else:
+            self.robot_xy = (float(robot[0, 3]), float(robot[1, 3]))
+            self.trajectory.append(((item.stamp_ns - self.log_start) / NS, *self.robot_xy))
+        self._advance_ticks(item.stamp_ns)
+        if not isinstance(rays, tuple):
+            t0 = time.perf_counter()
+            rays = rays.result()
+            stage["rays_wait"] += time.perf_counter() - t0
+        ends, kind, rays_s = rays
+        stage["rays"] += rays_s
+        t0 = time.perf_counter()
+        r = self.lmap.integrate_rays(T[:3, 3], ends, kind)
+        integrate_s = time.perf_counter() - t0
+        stage["integrate"] += integrate_s
         c = self.counts
         c.used[topic] += 1
         c.rays += r.rays
-        c.frame_ms.setdefault(topic, []).append((time.perf_counter() - t_start) * 1e3)
+        c.frame_ms.setdefault(topic, []).append((lookup_s + rays_s + integrate_s) * 1e3)
         c.stamps.setdefault(topic, []).append(item.stamp_ns)
         self._last_stamp = max(getattr(self, "_last_stamp", 0), item.stamp_ns)
         if self.mcap is not None and isinstance(item, ScanFrame):
+            t0 = time.perf_counter()
             self._publish_fused_scan(item, T)
+            stage["projection"] += time.perf_counter() - t0
 
     # ------------------------------------------------------------------------------------
     def _clock(self):
@@ -547,6 +653,108 @@ class Replay:
         if lmap.static is not None:
             save("static", project(lmap, use_lt=False, use_o_free=False), "trinary")
         return written
+
+
+class _TimedIter:
+    """Iterate a frame stream in this thread, adding the time spent in it to ``stage["read"]``."""
+
+    def __init__(self, stream, stage: Counter):
+        self.stream = stream
+        self.stage = stage
+
+    def __iter__(self):
+        it = iter(self.stream)
+        while True:
+            t0 = time.perf_counter()
+            try:
+                x = next(it)
+            except StopIteration:
+                self.stage["read"] += time.perf_counter() - t0
+                return
+            self.stage["read"] += time.perf_counter() - t0
+            yield x
+
+    def close(self) -> None:
+        close = getattr(self.stream, "close", None)
+        if close is not None:
+            close()
+
+
+class _ReaderThread:
+    """Read and decode a frame stream in a background thread, handing batches to the consumer
+    through a bounded queue (log order kept; an exception of the stream is re-raised where the
+    consumer reaches it). ``stage["read"]``: time the consumer waited; ``stage["read_thread"]``:
+    the reader's busy time."""
+
+    BATCH = 32
+    DEPTH = 8  # batches queued at most
+
+    def __init__(self, stream, stage: Counter):
+        self.stream = stream
+        self.stage = stage
+        self.q: queue.Queue = queue.Queue(maxsize=self.DEPTH)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name="ltmap-reader", daemon=True)
+        self.thread.start()
+
+    def _put(self, item) -> bool:
+        while not self.stop.is_set():
+            try:
+                self.q.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self) -> None:
+        busy = 0.0
+        batch: list = []
+        try:
+            it = iter(self.stream)
+            while not self.stop.is_set():
+                t0 = time.perf_counter()
+                try:
+                    x = next(it)
+                except StopIteration:
+                    busy += time.perf_counter() - t0
+                    break
+                busy += time.perf_counter() - t0
+                batch.append(x)
+                if len(batch) >= self.BATCH:
+                    if not self._put(("items", batch)):
+                        return
+                    batch = []
+            if batch:
+                self._put(("items", batch))
+            self._put(("end", None))
+        except BaseException as err:  # noqa: BLE001 - handed to the consumer
+            if batch:
+                self._put(("items", batch))
+            self._put(("error", err))
+        finally:
+            self.stage["read_thread"] += busy
+            close = getattr(self.stream, "close", None)
+            if close is not None and self.stop.is_set():
+                close()
+
+    def __iter__(self):
+        while True:
+            t0 = time.perf_counter()
+            kind, payload = self.q.get()
+            self.stage["read"] += time.perf_counter() - t0
+            if kind == "items":
+                yield from payload
+            elif kind == "end":
+                return
+            else:
+                raise payload
+
+    def close(self) -> None:
+        self.stop.set()
+        while self.thread.is_alive():
+            with contextlib.suppress(queue.Empty):
+                self.q.get(timeout=0.05)
+        self.thread.join()
 
 
 def _json_default(o):

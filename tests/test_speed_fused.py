@@ -1,0 +1,212 @@
+"""The fast paths of issue 7 give exactly what the plain serial path gives.
+
+- ``depth_image_rays`` (one fused kernel) == depth_metres -> depth_to_points -> transform_points
+  -> classify_rays -> dedupe_endpoints, bit for bit;
+- the direct CDR parsers give the same frames as the generic deserializers;
+- a replay with the fast decoding, fused kernel, reader thread and rays worker leaves the same O
+  (log-odds and stamps, block for block), the same D (ST, LT, ...) and the same events as the
+  serial path;
+- ``map.sensor.depth_max_rate`` drops depth frames before decoding, as documented.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ltmap_cli.config import Config
+from ltmap_cli.core.layers import LayeredMap
+from ltmap_cli.core.raycast import transform_points_kernel
+from ltmap_cli.core.sensors import depth_to_points, transform_points
+from ltmap_cli.io.decode import RawDepthFrame
+from ltmap_cli.io.frames import DepthFrame
+from ltmap_cli.io.logs import open_logs
+from ltmap_cli.replay import Replay, ReplayRequest
+
+ROOT = Path(__file__).resolve().parent.parent
+HOUSE = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
+SCEN = ROOT / "sample_logs" / "scenarios"
+
+
+def _pose(rng) -> np.ndarray:
+    q, _ = np.linalg.qr(rng.normal(size=(3, 3)))
+    if np.linalg.det(q) < 0:
+        q[:, 0] *= -1
+    T = np.eye(4)
+    T[:3, :3] = q
+    T[:3, 3] = rng.normal(size=3) * 3 + [0, 0, 1.0]
+    return T
+
+
+def test_transform_points_numpy_equals_kernel():
+    rng = np.random.default_rng(3)
+    for _ in range(4):
+        T = _pose(rng)
+        p = rng.normal(size=(5000, 3)) * 7
+        assert np.array_equal(transform_points(T, p), transform_points_kernel(T, p))
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+@pytest.mark.parametrize("dedupe", [True, False])
+@pytest.mark.parametrize("max_range", [3.0, 8.0])
+def test_fused_depth_kernel_equals_serial_steps(encoding, dedupe, max_range):
+    rng = np.random.default_rng(7)
+    h, w = 120, 160
+    raw16 = rng.uniform(100, 9000, size=(h, w)).astype(np.uint16)
+    raw16[rng.random((h, w)) < 0.1] = 0
+    if encoding == "16UC1":
+        raw = raw16
+        depth = raw16.astype(np.float32) * np.float32(0.001)
+        depth[raw16 == 0] = np.nan
+    else:
+        raw = raw16.astype(np.float32) * np.float32(0.00137)
+        raw[raw16 == 0] = np.nan
+        raw[:3, :5] = -1.0
+        raw[5, 5] = np.inf
+        depth = raw.copy()
+        depth[~(depth > 0) | ~np.isfinite(depth)] = np.nan
+    for trial in range(3):
+        T = _pose(rng)
+        robot = T.copy() if trial else None
+        lmap = LayeredMap()
+        lmap.cfg.sensor.ground_tolerance = 0.3  # so that the ground rule fires on some points
+        pts = depth_to_points(depth, 130.0, 131.0, 79.5, 59.5)
+        e1, k1 = lmap.rays(T[:3, 3], transform_points(T, pts), None, max_range, robot, dedupe)
+        e2, k2 = lmap.depth_rays(raw, 130.0, 131.0, 79.5, 59.5, T, max_range, robot, dedupe)
+        keep = k1 > 0
+        assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+        assert set(np.unique(k2)) >= {2}
+        # and the same map once integrated
+        m1, m2 = LayeredMap(), LayeredMap()
+        r1 = m1.integrate_rays(T[:3, 3], e1, k1)
+        r2 = m2.integrate_rays(T[:3, 3], e2, k2)
+        assert (r1.rays, r1.hits, r1.misses) == (r2.rays, r2.hits, r2.misses)
+        assert np.array_equal(m1.O.channel("logodds"), m2.O.channel("logodds"))
+
+
+def test_fused_depth_kernel_big_endian_and_strided():
+    rng = np.random.default_rng(11)
+    raw = rng.uniform(300, 5000, size=(40, 60)).astype(np.uint16)
+    T = _pose(rng)
+    lmap = LayeredMap()
+    ref = lmap.depth_rays(raw, 50.0, 50.0, 29.5, 19.5, T, 8.0)
+    big = raw.astype(">u2")
+    assert all(np.array_equal(a, b) for a, b in zip(ref, lmap.depth_rays(big, 50.0, 50.0, 29.5, 19.5, T, 8.0)))
+    wide = np.zeros((40, 64), np.uint16)
+    wide[:, :60] = raw
+    view = wide[:, :60]
+    assert all(np.array_equal(a, b) for a, b in zip(ref, lmap.depth_rays(view, 50.0, 50.0, 29.5, 19.5, T, 8.0)))
+
+
+def _fields(item) -> dict:
+    out = {}
+    for f in ("stamp_ns", "frame_id", "topic", "intrinsics", "angle_min", "angle_increment", "range_min",
+              "range_max", "parent", "child", "translation", "rotation_xyzw", "static"):
+        if hasattr(item, f):
+            out[f] = getattr(item, f)
+    return out
+
+
+@pytest.mark.parametrize("log", [HOUSE, SCEN / "01_static_object" / "log.mcap"])
+def test_fast_decoding_gives_the_same_frames(log):
+    if not log.exists():
+        pytest.skip(f"{log} missing")
+    with open_logs(log) as logs:
+        slow = list(logs.messages())
+    with open_logs(log) as logs:
+        fast = list(logs.messages(fast=True))
+    assert len(slow) == len(fast)
+    n_depth = 0
+    for (ta, na, a), (tb, nb, b) in zip(slow, fast):
+        assert (ta, na) == (tb, nb)
+        assert _fields(a) == _fields(b)
+        if hasattr(a, "ranges"):
+            assert a.ranges.dtype == b.ranges.dtype
+            assert np.array_equal(a.ranges, b.ranges, equal_nan=True)
+        if isinstance(a, DepthFrame):
+            assert isinstance(b, RawDepthFrame)
+            assert np.array_equal(a.depth_m, b.depth_m, equal_nan=True)
+            n_depth += 1
+    assert n_depth > 0 or log != HOUSE
+
+
+def test_fast_decoding_ros1_and_ros2_bags_fall_back():
+    """ROS 1 bags have no fast path and ROS 2 bags go through it: both still give the frames."""
+    for log in [SCEN / "01_static_object" / "log.bag", SCEN / "01_static_object" / "log_ros2"]:
+        if not log.exists():
+            continue
+        with open_logs(log) as logs:
+            slow = [(t, n, _fields(i)) for t, n, i in logs.messages()]
+        with open_logs(log) as logs:
+            fast = [(t, n, _fields(i)) for t, n, i in logs.messages(fast=True)]
+        assert slow == fast
+
+
+def _replay(log: Path, out: Path, fast: bool, threads: bool, **sensor) -> tuple[Replay, dict]:
+    cfg = Config()
+    cfg.replay.plots = False
+    for k, v in sensor.items():
+        setattr(cfg.map.sensor, k, v)
+    r = Replay(cfg, ReplayRequest([log], out))
+    r.fast = fast
+    r.threads = threads
+    return r, r.run()
+
+
+def _same_maps(a: LayeredMap, b: LayeredMap) -> None:
+    assert a.O.n_blocks == b.O.n_blocks and a.D.n_blocks == b.D.n_blocks
+    assert np.array_equal(a.O.block_coords[: a.O.n_blocks], b.O.block_coords[: b.O.n_blocks])
+    for c in ("logodds", "stamp"):
+        x, y = a.O.channel(c), b.O.channel(c)
+        assert x.dtype == y.dtype and x.tobytes() == y.tobytes(), c  # bit for bit
+    assert np.array_equal(a.D.block_coords[: a.D.n_blocks], b.D.block_coords[: b.D.n_blocks])
+    for c in ("st", "lt", "last_obs", "last_seen", "obst_since", "free_since"):
+        assert a.D.channel(c).tobytes() == b.D.channel(c).tobytes(), c
+    assert np.array_equal(a.events.transitions, b.events.transitions)
+    for x, y in zip(a.events.history, b.events.history):
+        assert np.array_equal(x, y)
+
+
+def test_fast_threaded_replay_equals_serial_replay(tmp_path):
+    if not HOUSE.exists():
+        pytest.skip("house sample missing")
+    serial, rep_s = _replay(HOUSE, tmp_path / "serial", fast=False, threads=False)
+    fast, rep_f = _replay(HOUSE, tmp_path / "fast", fast=True, threads=True)
+    _same_maps(serial.lmap, fast.lmap)
+    assert rep_s["frames_used"] == rep_f["frames_used"]
+    assert rep_s["rays"] == rep_f["rays"]
+    assert rep_s["events"]["list"] == rep_f["events"]["list"]
+    assert (tmp_path / "serial" / "map.pgm").read_bytes() == (tmp_path / "fast" / "map.pgm").read_bytes()
+    assert set(rep_f["stage_s"]) >= {"read", "tf", "rays", "integrate", "ticks", "output"}
+
+
+def test_fast_serial_replay_equals_serial_replay(tmp_path):
+    if not HOUSE.exists():
+        pytest.skip("house sample missing")
+    a, _ = _replay(HOUSE, tmp_path / "a", fast=False, threads=True)
+    b, _ = _replay(HOUSE, tmp_path / "b", fast=True, threads=False)
+    _same_maps(a.lmap, b.lmap)
+
+
+def test_depth_max_rate_drops_frames_before_integration(tmp_path):
+    if not HOUSE.exists():
+        pytest.skip("house sample missing")
+    _, full = _replay(HOUSE, tmp_path / "full", fast=True, threads=True)
+    _, capped = _replay(HOUSE, tmp_path / "capped", fast=True, threads=True, depth_max_rate=1.0)
+    topic = "/camera/depth/image_raw"
+    n_full, n_cap = full["frames_used"][topic], capped["frames_used"][topic]
+    skipped = capped["frames_over_depth_max_rate"][topic]
+    assert n_cap + skipped == n_full
+    assert n_cap == -(-n_full // 3)  # a 2.5 Hz camera with at most one frame per 0.9 s: every 3rd
+    assert capped["frames_used"]["/scan"] == full["frames_used"]["/scan"]
+    # the slow path drops the same frames
+    _, capped_slow = _replay(HOUSE, tmp_path / "capped_slow", fast=False, threads=False, depth_max_rate=1.0)
+    assert capped_slow["frames_used"] == capped["frames_used"]
+
+
+def test_depth_max_rate_is_validated():
+    cfg = Config()
+    cfg.map.sensor.depth_max_rate = -1
+    assert any("depth_max_rate" in p for p in cfg.map.validate())
