@@ -15,7 +15,6 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
-import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -448,7 +447,6 @@ class LayeredMap:
         self.set_static(static)
         self.events = EventLog()
         self.history_every = 5  # ticks between ST / LT history samples (0: transitions only)
-        self._local = threading.local()  # per-thread scratch of depth_rays
         # forget queue (ST forgetting without scanning the map): voxel ids (D block * 512 + offset)
         # in due-tick order; meta = [head, tail, resume index of _queue_obstacles]
         self._fq_vid = np.empty(1 << 16, dtype=np.int64)
@@ -539,25 +537,12 @@ class LayeredMap:
             unit_mm = False
         else:
             raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
-        h, w = depth.shape
-        table, used = self._scratch(h * w)
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         return depth_image_rays(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(T, dtype=np.float64),
             float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
-            bool(dedupe), 1.0 / self.resolution, table, used,
+            bool(dedupe), 1.0 / self.resolution,
         )  # fmt: skip
-
-    def _scratch(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """Per-thread dedupe table (all -1 between calls) and slot list for ``depth_image_rays``."""
-        have = getattr(self._local, "scratch", None)
-        if have is None or len(have[1]) < n:
-            cap = 16
-            while cap < 2 * n:
-                cap *= 2
-            have = (np.full(cap, -1, dtype=np.int64), np.empty(n, dtype=np.int64))
-            self._local.scratch = have
-        return have
 
     def integrate(
         self,

@@ -278,32 +278,40 @@ def _dedupe_key(ex, ey, ez, kd, inv_res):
     return ((i << 42) | (j << 21) | k) * 2 + (1 if kd == RAY_HIT else 0)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _slot_of(packed, mask):
+    hh = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
+    return np.int64((hh ^ (hh >> np.uint64(31))) & np.uint64(mask))
+
+
 @njit(cache=True, nogil=True)
-def depth_image_rays(
+def _depth_rays_pass(
     depth, unit_mm, fx, fy, cx, cy, T,
     max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp,
-    dedupe, inv_res, table, used,
+    dedupe, inv_res, cap,
 ):  # fmt: skip
-    """One depth image straight to the rays ``integrate_kernel`` casts: (ends (M, 3), kind (M,)).
-
-    Fuses ``depth_metres`` + ``depth_to_points`` + ``transform_points`` + ``classify_rays`` +
-    ``dedupe_endpoints`` with the same arithmetic in the same order, so the rays are bit for bit
-    those of the separate steps (minus the RAY_SKIP entries, which ``integrate_kernel`` ignores).
-
-    depth: (H, W) raw pixels, uint16 millimetres (``unit_mm``, 0 invalid) or float32 metres (NaN /
-    <= 0 invalid); T: 4x4 optical frame -> fixed frame. ``table`` (power-of-two size >= 2 H W,
-    all -1) and ``used`` (>= H W) are scratch space for the per-voxel dedupe; the table is left
-    all -1 again on return.
-    """
+    """``depth_image_rays`` with a dedupe set of ``cap`` slots: (ends, kind, True), or
+    (empty, empty, False) when more than cap / 2 end voxels turn up."""
     h, w = depth.shape
     ends = np.empty((h * w, 3), dtype=np.float64)
     kind = np.empty(h * w, dtype=np.int8)
     ox, oy, oz = T[0, 3], T[1, 3], T[2, 3]
-    mask = table.shape[0] - 1
+    t00, t01, t02, t03 = T[0, 0], T[0, 1], T[0, 2], T[0, 3]
+    t10, t11, t12, t13 = T[1, 0], T[1, 1], T[1, 2], T[1, 3]
+    t20, t21, t22, t23 = T[2, 0], T[2, 1], T[2, 2], T[2, 3]
+    table = np.full(cap, -1, dtype=np.int64)
+    mask = cap - 1
     m = 0
-    n_used = 0
+    last = np.int64(-1)  # the two last keys seen (a row crossing a voxel border alternates)
+    last2 = np.int64(-1)
     mm = np.float32(0.001)
+    xr = np.empty(w, dtype=np.float64)  # (u - cx) / fx, as depth_to_points computes it
+    for u in range(w):
+        xr[u] = (np.float64(u) - cx) / fx
+    # a ray is cut only beyond max_range: below this squared length it surely is not (no sqrt)
+    safe2 = (max_range * (1.0 - 1e-9)) ** 2 if max_range > 0.0 else np.inf
     for v in range(h):
+        yv = (np.float64(v) - cy) / fy
         for u in range(w):
             raw = depth[v, u]
             if unit_mm:
@@ -315,19 +323,31 @@ def depth_image_rays(
                 if not (np.isfinite(z32) and z32 > 0):
                     continue
             z = np.float64(z32)
-            x = (np.float64(u) - cx) * z / fx
-            y = (np.float64(v) - cy) * z / fy
-            px = T[0, 0] * x + T[0, 1] * y + T[0, 2] * z + T[0, 3]
-            py = T[1, 0] * x + T[1, 1] * y + T[1, 2] * z + T[1, 3]
-            pz = T[2, 0] * x + T[2, 1] * y + T[2, 2] * z + T[2, 3]
+            x = xr[u] * z
+            y = yv * z
+            px = t00 * x + t01 * y + t02 * z + t03
+            py = t10 * x + t11 * y + t12 * z + t13
+            pz = t20 * x + t21 * y + t22 * z + t23
             if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
                 continue
-            kd, px, py, pz = _classify_one(ox, oy, oz, px, py, pz, True, max_range, ground_tol, fp_inv, fp_min,
-                                           fp_max, use_fp)  # fmt: skip
+            dx, dy, dz = px - ox, py - oy, pz - oz
+            if dx * dx + dy * dy + dz * dz < safe2:  # within range: only the ground / footprint rules
+                kd = RAY_HIT
+                if ground_tol >= 0.0 and abs(pz) <= ground_tol:
+                    kd = RAY_CLEAR
+                elif use_fp:
+                    kd, px, py, pz = _classify_one(ox, oy, oz, px, py, pz, True, 0.0, ground_tol, fp_inv, fp_min,
+                                                   fp_max, use_fp)  # fmt: skip
+            else:
+                kd, px, py, pz = _classify_one(ox, oy, oz, px, py, pz, True, max_range, ground_tol, fp_inv, fp_min,
+                                               fp_max, use_fp)  # fmt: skip
             if dedupe:
                 packed = _dedupe_key(px, py, pz, kd, inv_res)
-                hh = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
-                s = np.int64((hh ^ (hh >> np.uint64(31))) & np.uint64(mask))
+                if packed == last or packed == last2:
+                    continue
+                last2 = last
+                last = packed
+                s = _slot_of(packed, mask)
                 dup = False
                 while True:
                     t = table[s]
@@ -336,20 +356,45 @@ def depth_image_rays(
                         break
                     if t == -1:
                         table[s] = packed
-                        used[n_used] = s
-                        n_used += 1
                         break
                     s = (s + 1) & mask
                 if dup:
                     continue
+                if 2 * (m + 1) > cap:  # the set would be more than half full: start again, 4x bigger
+                    return ends[:0], kind[:0], False
             ends[m, 0] = px
             ends[m, 1] = py
             ends[m, 2] = pz
             kind[m] = kd
             m += 1
-    for q in range(n_used):
-        table[used[q]] = -1
-    return ends[:m].copy(), kind[:m].copy()
+    return ends[:m].copy(), kind[:m].copy(), True
+
+
+@njit(cache=True, nogil=True)
+def depth_image_rays(
+    depth, unit_mm, fx, fy, cx, cy, T,
+    max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp,
+    dedupe, inv_res,
+):  # fmt: skip
+    """One depth image straight to the rays ``integrate_kernel`` casts: (ends (M, 3), kind (M,)).
+
+    Fuses ``depth_metres`` + ``depth_to_points`` + ``transform_points`` + ``classify_rays`` +
+    ``dedupe_endpoints`` with the same arithmetic in the same order, so the rays are bit for bit
+    those of the separate steps (minus the RAY_SKIP entries, which ``integrate_kernel`` ignores).
+
+    depth: (H, W) raw pixels, uint16 millimetres (``unit_mm``, 0 invalid) or float32 metres (NaN /
+    <= 0 invalid); T: 4x4 optical frame -> fixed frame. The dedupe set is sized by the voxels
+    kept (a few ten thousand: it stays in cache), not by the pixels; a frame with more end voxels
+    than it holds is done again with a bigger set. A pixel that ends in the same voxel as the
+    pixel before it skips the lookup.
+    """
+    cap = 1 << 15
+    while True:
+        ends, kind, ok = _depth_rays_pass(depth, unit_mm, fx, fy, cx, cy, T, max_range, ground_tol, fp_inv, fp_min,
+                                          fp_max, use_fp, dedupe, inv_res, cap)  # fmt: skip
+        if ok:
+            return ends, kind
+        cap *= 4
 
 
 @njit(cache=True, nogil=True)

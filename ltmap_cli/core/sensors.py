@@ -47,9 +47,11 @@ def depth_to_points(
     h, w = d.shape
     v, u = np.nonzero(np.isfinite(d) & (d > 0))
     z = d[v, u].astype(np.float64)
-    uu = u.astype(np.float64) * stride
-    vv = v.astype(np.float64) * stride
-    return np.stack([(uu - cx) * z / fx, (vv - cy) * z / fy, z], axis=1)
+    # x = z (u - cx) / fx, as ((u - cx) / fx) * z: the ratio per column and row, as the fused
+    # kernel core.raycast.depth_image_rays computes it (bit for bit the same points)
+    xr = (np.arange(w, dtype=np.float64) * stride - cx) / fx
+    yr = (np.arange(h, dtype=np.float64) * stride - cy) / fy
+    return np.stack([xr[u] * z, yr[v] * z, z], axis=1)
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
