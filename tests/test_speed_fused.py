@@ -19,7 +19,7 @@ import pytest
 from ltmap_cli.config import Config
 from ltmap_cli.core.layers import LayeredMap
 from ltmap_cli.core.raycast import transform_points_kernel
-from ltmap_cli.core.sensors import depth_to_points, transform_points
+from ltmap_cli.core.sensors import depth_to_points, transform_points, transform_points_numpy
 from ltmap_cli.io.decode import RawDepthFrame
 from ltmap_cli.io.frames import DepthFrame
 from ltmap_cli.io.logs import open_logs
@@ -45,6 +45,7 @@ def test_transform_points_numpy_equals_kernel():
     for _ in range(4):
         T = _pose(rng)
         p = rng.normal(size=(5000, 3)) * 7
+        assert np.array_equal(transform_points_numpy(T, p), transform_points_kernel(T, p))
         assert np.array_equal(transform_points(T, p), transform_points_kernel(T, p))
 
 

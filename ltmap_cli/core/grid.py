@@ -140,6 +140,20 @@ def _add_many(table_keys, table_vals, block_coords, meta, keys, blocks, offs, st
     return keys.shape[0]
 
 
+def _grown(arr: np.ndarray, rows: int, fill) -> np.ndarray:
+    """``arr`` with ``rows`` rows, the new ones set to ``fill``: resized in place when nothing else
+    references it, else copied."""
+    old = arr.shape[0]
+    try:
+        arr.resize((rows, *arr.shape[1:]), refcheck=True)
+    except (ValueError, SystemError):  # referenced elsewhere (a view, a kernel argument): copy
+        extra = np.full((rows - old, *arr.shape[1:]), fill, dtype=arr.dtype)
+        return np.concatenate([arr, extra])
+    if fill != 0:
+        arr[old:] = fill
+    return arr
+
+
 def _local_offsets() -> np.ndarray:
     """(512, 3) local (di, dj, dk) of each voxel offset inside a block."""
     o = np.arange(BLOCK_VOXELS)
@@ -184,13 +198,18 @@ class VoxelGrid:
         return total + sum(a.nbytes for a in self.data.values())
 
     def grow(self, min_free_blocks: int = 1) -> None:
-        """At least double the block pool (and the hash table with it)."""
+        """Grow the block pool by half (at least ``min_free_blocks``), and the hash table with it.
+
+        Arrays are resized in place where numpy can (``ndarray.resize``: a realloc, which for
+        large arrays remaps pages instead of copying), so growing does not hold the old and the
+        new pool at once; when something else still references an array (a view handed out by
+        ``channel``), it is copied instead. Growth by 1.5x keeps the unused tail of the pool
+        below a third of it."""
         n, old = self.n_blocks, self.max_blocks
-        new = max(old * 2, n + min_free_blocks)
-        self.block_coords = np.concatenate([self.block_coords, np.zeros((new - old, 3), np.int32)])
-        for name, (dtype, fill) in self.channel_spec.items():
-            extra = np.full((new - old, BLOCK_VOXELS), fill, dtype=dtype)
-            self.data[name] = np.concatenate([self.data[name], extra])
+        new = max(old + old // 2, n + min_free_blocks, 16)
+        self.block_coords = _grown(self.block_coords, new, 0)
+        for name, (_dtype, fill) in self.channel_spec.items():
+            self.data[name] = _grown(self.data.pop(name), new, fill)
         self.meta[META_MAX] = new
         if self.table_keys.shape[0] < 2 * new:
             capacity = 1 << int(np.ceil(np.log2(2 * new)))
@@ -242,10 +261,12 @@ class VoxelGrid:
 
     # -- state ------------------------------------------------------------------------------
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
+        """The used part of every array, as views (no copy: a snapshot of a big map would
+        otherwise double its memory): write or copy them before the map changes."""
         n = self.n_blocks
-        out = {f"{prefix}block_coords": self.block_coords[:n].copy()}
+        out = {f"{prefix}block_coords": self.block_coords[:n]}
         for name in self.channel_spec:
-            out[f"{prefix}{name}"] = self.data[name][:n].copy()
+            out[f"{prefix}{name}"] = self.data[name][:n]
         return out
 
     @classmethod

@@ -746,7 +746,8 @@ class LayeredMap:
 
     # -- exact state --------------------------------------------------------------------------
     def state_arrays(self) -> dict[str, np.ndarray]:
-        """Everything needed to continue exactly where this map stands (plain arrays)."""
+        """Everything needed to continue exactly where this map stands (plain arrays; the voxel
+        arrays are views of the map's: write them out or copy them before the map changes)."""
         out = {
             "resolution": np.array(self.resolution),
             "frame_id": np.array(self.frame_id),

@@ -343,7 +343,7 @@ def _depth_rays_pass(
                                                fp_max, use_fp)  # fmt: skip
             if dedupe:
                 packed = _dedupe_key(px, py, pz, kd, inv_res)
-                if packed == last or packed == last2:
+                if packed == last or packed == last2:  # noqa: SIM109 - plain compares for numba
                     continue
                 last2 = last
                 last = packed

@@ -59,7 +59,17 @@ def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
 
     Row by row as ``T[r,0] x + T[r,1] y + T[r,2] z + T[r,3]``, summed left to right (not a BLAS
     matmul, whose summation order is not fixed): the same numbers as the fused depth kernel
-    ``core.raycast.depth_image_rays``."""
+    ``core.raycast.depth_image_rays`` (a compiled loop; the numpy expression of the same sums
+    gives the same bits, see tests/test_speed_fused.py)."""
+    from .raycast import transform_points_kernel
+
+    T = np.ascontiguousarray(T, dtype=np.float64)
+    p = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    return transform_points_kernel(T, p)
+
+
+def transform_points_numpy(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """``transform_points`` in plain numpy (the reference the kernel is tested against)."""
     T = np.asarray(T, dtype=np.float64)
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     x, y, z = p[:, 0], p[:, 1], p[:, 2]
