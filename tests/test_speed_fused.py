@@ -73,12 +73,19 @@ def test_fused_depth_kernel_equals_serial_steps(encoding, dedupe, max_range):
         robot = T.copy() if trial else None
         lmap = LayeredMap()
         lmap.cfg.sensor.ground_tolerance = 0.3  # so that the ground rule fires on some points
+        lmap.cfg.robot.footprint_min = [-3.0, -3.0, -1.0]  # and the footprint rule on others
+        lmap.cfg.robot.footprint_max = [3.0, 3.0, 2.0]
         pts = depth_to_points(depth, 130.0, 131.0, 79.5, 59.5)
         e1, k1 = lmap.rays(T[:3, 3], transform_points(T, pts), None, max_range, robot, dedupe)
         e2, k2 = lmap.depth_rays(raw, 130.0, 131.0, 79.5, 59.5, T, max_range, robot, dedupe)
         keep = k1 > 0
         assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
         assert set(np.unique(k2)) >= {2}
+        if robot is not None:
+            plain = LayeredMap()
+            plain.cfg.sensor.ground_tolerance = 0.3
+            _, k0 = plain.depth_rays(raw, 130.0, 131.0, 79.5, 59.5, T, max_range, robot, dedupe)
+            assert (k0 == 2).sum() > (k2 == 2).sum() or not dedupe  # the footprint took some hits
         # and the same map once integrated
         m1, m2 = LayeredMap(), LayeredMap()
         r1 = m1.integrate_rays(T[:3, 3], e1, k1)
