@@ -1,4 +1,4 @@
-"""Cost and effect of the depth outlier filter (``map.sensor.depth_outlier_filter``).
+"""Cost and effect of the depth outlier filter (``ltmap replay --depth-outlier-filter``, ``replay.depth_outlier_filter``).
 
     python bench/bench_depth_filter.py [--log sample_logs/scenarios/06_house/log.mcap]
 

@@ -38,6 +38,9 @@ class ReplayConfig:
     mcap_out: bool = False  # write OUT/replay.mcap for Foxglove / RViz
     plots: bool = True  # write OUT/plots/*.png
     map_period: float = 1.0  # s of log time between map messages in replay.mcap (when they changed)
+    depth_outlier_filter: bool = False  # drop flying pixels at depth jumps (open3d radius outlier removal)
+    depth_outlier_radius: float = 0.02  # m: a jump pixel needs ...
+    depth_outlier_min_neighbors: int = 3  # ... this many other points within the radius to stay
 
 
 @dataclass
@@ -55,6 +58,10 @@ class Config:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
         if self.replay.robot_radius < 0:
             problems.append("replay.robot_radius must be >= 0")
+        if self.replay.depth_outlier_radius <= 0:
+            problems.append("replay.depth_outlier_radius must be > 0")
+        if self.replay.depth_outlier_min_neighbors < 1:
+            problems.append("replay.depth_outlier_min_neighbors must be >= 1")
         if problems:
             raise ConfigError("invalid configuration: " + "; ".join(problems))
 

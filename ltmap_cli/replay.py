@@ -74,6 +74,8 @@ class _Counts:
     stamps: dict = field(default_factory=dict)  # topic -> [header stamps ns] (frame periods)
     tick_ms: list = field(default_factory=list)
     stage_s: Counter = field(default_factory=Counter)  # stage -> wall s spent in it (see Replay.stages)
+    depth_filtered_frames: int = 0  # depth frames passed through the flying-pixel filter
+    depth_filtered_pixels: int = 0  # pixels it dropped
 
 
 def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
@@ -304,6 +306,11 @@ class Replay:
             "frames_skipped_by_topic": dict(self.counts.skipped_by_topic),
             "frames_over_depth_max_rate": rate_skipped,
             "frames_without_footprint": self.counts.no_footprint,
+            "depth_outlier_filter": {
+                "enabled": cfg.replay.depth_outlier_filter,
+                "frames": self.counts.depth_filtered_frames,
+                "pixels_dropped": self.counts.depth_filtered_pixels,
+            },
             "rays": self.counts.rays,
             "log_start_ns": int(self.log_start),
             "log_duration_s": round(self.log_total_s, 3),
@@ -471,6 +478,9 @@ class Replay:
         t0 = time.perf_counter()
         sc = self.cfg.map.sensor
         lmap = self.lmap
+        rc = self.cfg.replay
+        if rc.depth_outlier_filter and isinstance(item, (DepthFrame, RawDepthFrame)):
+            item = self._filter_depth(item)
         if isinstance(item, RawDepthFrame) and self.fast:
             k = item.intrinsics
             ends, kind = lmap.depth_rays(item.raw, k.fx, k.fy, k.cx, k.cy, T, sc.depth_max_range, robot,
@@ -499,6 +509,21 @@ class Replay:
         world = transform_points(T, pts)
         ends, kind = lmap.rays(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
         return ends, kind, time.perf_counter() - t0
+
+    def _filter_depth(self, item) -> DepthFrame:
+        """The frame with its flying pixels set invalid (NaN); counted in the report. Runs in the
+        single rays worker, so the counters have one writer."""
+        from .filters import flying_pixel_mask
+
+        rc = self.cfg.replay
+        k = item.intrinsics
+        depth = np.array(item.depth_m, dtype=np.float32)  # a copy: the message buffer stays as read
+        drop = flying_pixel_mask(depth, k.fx, k.fy, k.cx, k.cy, radius=rc.depth_outlier_radius,
+                                 min_neighbors=rc.depth_outlier_min_neighbors)  # fmt: skip
+        depth[drop] = np.nan
+        self.counts.depth_filtered_frames += 1
+        self.counts.depth_filtered_pixels += int(drop.sum())
+        return DepthFrame(item.stamp_ns, item.frame_id, depth, k, item.topic)
 
     def _drain(self, keep: int) -> None:
         """Integrate queued frames in order until at most ``keep`` are left (and none whose rays

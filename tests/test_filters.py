@@ -33,3 +33,37 @@ def test_flying_pixels_go_and_the_surfaces_stay():
 def test_no_edges_no_work():
     d = np.full((60, 80), 3.0, dtype=np.float32)
     assert not flying_pixel_mask(d, F, F, CX, CY).any()
+
+
+def test_replay_with_the_filter_drops_the_flying_voxels(tmp_path):
+    """The same depth log replayed with and without --depth-outlier-filter: the two mixed pixels
+    of each frame are dropped and counted, and the two voxels they alone occupied (the wall and
+    the box face each hit by many pixels) are gone from O; nothing else changes."""
+    import json
+
+    from click.testing import CliRunner
+    from logfactory import camera_info, image, tf, write_log
+
+    from ltmap_cli.cli import cli
+
+    s = 1_000_000_000
+    mm = np.nan_to_num(scene() * 1000.0).round().astype(np.uint16)  # NaN -> 0: invalid
+    msgs = [tf(s, [("map", "camera_optical")], static=True)]
+    for i in range(3):
+        t = s + i * 100_000_000
+        msgs.append(camera_info("/cam/depth/camera_info", t, width=80, height=60, fx=F, fy=F, cx=CX, cy=CY))
+        msgs.append(image("/cam/depth/image_raw", t + 1, mm))
+    log = write_log(tmp_path / "depth.mcap", "mcap-ros2", msgs)
+
+    def replay(out, *extra):
+        args = ["replay", str(log), "-o", str(tmp_path / out), "--no-plots", "-q", *extra]
+        res = CliRunner().invoke(cli, args, catch_exceptions=False)
+        assert res.exit_code == 0, res.output
+        return json.loads((tmp_path / out / "report.json").read_text())
+
+    plain = replay("plain")
+    filtered = replay("filtered", "--depth-outlier-filter", "--set", "replay.depth_outlier_radius=0.06")
+    assert plain["depth_outlier_filter"] == {"enabled": False, "frames": 0, "pixels_dropped": 0}
+    assert filtered["depth_outlier_filter"] == {"enabled": True, "frames": 3, "pixels_dropped": 6}
+    assert plain["frames_used"] == filtered["frames_used"] == {"/cam/depth/image_raw": 3}
+    assert plain["voxels"]["occupied_O"] - filtered["voxels"]["occupied_O"] == 2

@@ -94,12 +94,14 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
               "Foxglove or RViz.")
 @click.option("--map-period", type=float, help="Seconds of log time between map messages in replay.mcap (1.0).")
 @click.option("--no-plots", is_flag=True, help="Skip OUT/plots/*.png.")
+@click.option("--depth-outlier-filter", is_flag=True, help="Drop flying pixels at depth edges before integrating "
+              "(open3d radius outlier removal; radius and neighbours: replay.depth_outlier_*).")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
            depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, mcap_out,
-           map_period, no_plots, overrides, quiet):
+           map_period, no_plots, depth_outlier_filter, overrides, quiet):
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
     layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
     (OctoMap .ot, .ply, exact state), report.json and config.yaml into the output folder."""
@@ -117,6 +119,7 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
         "replay.map_period": map_period,
         "replay.mcap_out": True if mcap_out else None,
         "replay.plots": False if no_plots else None,
+        "replay.depth_outlier_filter": True if depth_outlier_filter else None,
         "replay.plan_goal": _xy(plan_goal, "--plan-goal") if plan_goal else None,
     }
     for key, value in flags.items():
