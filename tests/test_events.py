@@ -119,6 +119,37 @@ def test_grouping_separates_space_and_time():
     assert set(members[first["id"]].tolist()) == {(0 << 6) | 5, (1 << 6) | 5}
 
 
+def _brute_labels(keys, ticks, window, link):
+    """Every pair compared: connected components, labelled by their smallest index."""
+    n = len(keys)
+    close = (np.abs(keys[:, None, :] - keys[None, :, :]).max(axis=2) <= link) & (
+        np.abs(ticks[:, None] - ticks[None, :]) <= window)
+    label = np.arange(n)
+    changed = True
+    while changed:  # propagate the minimum label through the adjacency to a fixed point
+        new = np.where(close, label[None, :], n).min(axis=1)
+        changed = bool((new != label).any())
+        label = new
+    return label
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_grouping_equals_every_pair_compared(seed):
+    """The bucketed, compiled grouping gives the components of the full pairwise relation, on
+    random voxels around the origin (negative keys, buckets split by the floor) and chains."""
+    from ltmap_cli.analysis.events import _group
+
+    rng = np.random.default_rng(seed)
+    keys = rng.integers(-25, 25, size=(400, 3))
+    keys[:40] = np.stack([np.arange(40) * 2 - 40, np.zeros(40), np.zeros(40)], axis=1)  # a chain across 0
+    ticks = rng.integers(0, 300, size=400)
+    ticks[:40] = 5
+    for window, link in ((25, 6), (3, 2), (0, 1)):
+        got = _group(keys, ticks, window, link)
+        assert got.tolist() == _brute_labels(keys, ticks, window, link).tolist()
+    assert len(set(_group(keys, ticks, 25, 6)[:40].tolist())) == 1  # the chain is one group
+
+
 def test_history_holds_values_between_records():
     hist_i = np.array([[0, 7], [0, 8], [5, 7], [10, 8]], dtype=np.int32)
     hist_v = np.array([[0.2, 0.0], [0.4, 0.0], [1.0, 1.0], [0.0, 0.5]], dtype=np.float32)
