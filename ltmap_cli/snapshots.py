@@ -45,6 +45,29 @@ def snapshot_name(t_s: float | None) -> str:
     return "final" if t_s is None else f"t{t_s:08.1f}s"
 
 
+def long_term_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
+    """(keys (N, 3), LT (N,)) of every voxel with LT > 0: what a ``.ot`` snapshot holds."""
+    D = lmap.D
+    keys = D.voxels_where(D.channel("lt") > 0)
+    return keys, D.get("lt", keys)
+
+
+def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
+    """(keys, OctoMap log-odds, resolution) of a ``.ot`` or of a state ``.npz`` (its LT voxels
+    converted as the ``.ot`` written beside it: occupied iff log-odds > 0)."""
+    if Path(path).suffix.lower() == ".ot":
+        from .io.ot import read_ot
+
+        return read_ot(path)
+    from .core.config import MapConfig
+
+    arrays, _meta = read_state(path)
+    lmap = LayeredMap(MapConfig(resolution=float(arrays["resolution"])))
+    lmap.load_state_arrays(arrays)
+    keys, lt = long_term_voxels(lmap)
+    return keys, lt_to_ot_logodds(lt, lmap.cfg.projection.occupied_thresh), lmap.resolution
+
+
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
     """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
     from .io.ot import write_ot
@@ -52,9 +75,7 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
     thr = lmap.cfg.projection.occupied_thresh
-    D = lmap.D
-    keys = D.voxels_where(D.channel("lt") > 0)
-    lt = D.get("lt", keys)
+    keys, lt = long_term_voxels(lmap)
     out = {}
     ot_path = folder / f"long_term_{name}.ot"
     write_ot(ot_path, keys, lt_to_ot_logodds(lt, thr), lmap.resolution)

@@ -392,3 +392,37 @@ def test_diff_voxels_counts_iou_and_tolerance():
     # (5,5,6) is 1 voxel from A's (5,5,5); (9,9,9) is far; (2,0,0) is 1 from B's (1,0,0)
     assert d1.counts["added"] == 1 and d1.counts["added_within_tolerance"] == 1
     assert d1.counts["removed"] == 0 and d1.counts["removed_within_tolerance"] == 1
+
+
+def test_3d_on_state_files_and_folders_equals_3d_on_their_ot(tmp_path):
+    """--3d reads exact-state snapshots (and a replay folder's final state) as the .ot written
+    beside them: the same counts, by hand: B loses one wall voxel and gains two."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.snapshots import write_snapshot
+
+    wall = [[i, 0, 10] for i in range(6)]
+    for name, keys in (("a", wall), ("b", wall[1:] + [[0, 3, 10], [0, 4, 12]])):
+        m = LayeredMap(MapConfig())
+        m.seed_long_term(np.array(keys), 1.0)
+        write_snapshot(m, tmp_path / name / "snapshots", None, {})
+    reps = []
+    for a, b in (
+        (tmp_path / "a/snapshots/long_term_final.ot", tmp_path / "b/snapshots/long_term_final.ot"),
+        (tmp_path / "a/snapshots/state_final.npz", tmp_path / "b/snapshots/state_final.npz"),
+        (tmp_path / "a", tmp_path / "b"),
+    ):
+        r = run(a, b, "--3d", "--json")
+        assert r.exit_code == 1, r.output
+        reps.append(json.loads(r.output)["voxels"])
+    assert reps[0] == reps[1] == reps[2]
+    # wall voxel (0,0,10) is absent from B's snapshot (unknown there): not "removed", not kept
+    assert reps[0]["added"] == 2 and reps[0]["unchanged_occupied"] == 5 and reps[0]["occupied_a"] == 6
+
+
+def test_maps_far_apart_are_refused_with_the_memory_they_would_need(tmp_path):
+    a = write_trinary(tmp_path / "a.yaml", base_map())
+    b = write_trinary(tmp_path / "b.yaml", base_map(), origin=(1e6, 0.0, 0.0))
+    r = run(a, b)
+    assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+    assert "GB" in r.output and "same frame" in r.output and len(r.output.strip().splitlines()) == 1

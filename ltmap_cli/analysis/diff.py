@@ -94,6 +94,10 @@ def _sample(src: GridMap, ref_origin, ref_yaw: float, res: float, row0: int, col
     return out
 
 
+MAX_CELLS = 100_000_000  # the common grid of two maps: 10,000 x 10,000 cells
+BYTES_PER_CELL = 12  # two int8 grids, their masks and the overlay while comparing
+
+
 def align(a: GridMap, b: GridMap, resample: bool = False, names: tuple[str, str] = ("A", "B")) -> Aligned:
     """Bring ``a`` and ``b`` onto one lattice covering both (see the module docstring)."""
     notes: list[str] = []
@@ -109,6 +113,9 @@ def align(a: GridMap, b: GridMap, resample: bool = False, names: tuple[str, str]
     # notes name the maps "A" and "B"; ``names`` (which may hold file paths) are for errors
     ref_name, other_name = ("A", "B") if ref_is_a else ("B", "A")
     res = float(ref.resolution)
+    for m, n in ((a, names[0]), (b, names[1])):
+        if not all(np.isfinite(float(v)) for v in m.origin):
+            raise InputError(f"{n}: origin {list(m.origin)} is not finite; fix the origin in its YAML")
     rx, ry, ryaw = (float(v) for v in ref.origin)
     if not _same(ra, rb):
         notes.append(
@@ -128,6 +135,12 @@ def align(a: GridMap, b: GridMap, resample: bool = False, names: tuple[str, str]
     row0 = min(0, int(np.floor(tl[1].min())))
     row1 = max(ref.height, int(np.ceil(tl[1].max())))
     h, w = row1 - row0, col1 - col0
+    if h * w > MAX_CELLS:
+        raise InputError(
+            f"{names[0]} and {names[1]} lie {abs(oxw - rx):.6g} m / {abs(oyw - ry):.6g} m apart (origins): "
+            f"comparing them needs a {w} x {h} cell grid (about {h * w * BYTES_PER_CELL / 2**30:.3g} GB); "
+            f"check that both maps are in the same frame (the origin in each YAML)"
+        )
 
     same_yaw = _same(oyaw, ryaw)
     if not same_yaw:

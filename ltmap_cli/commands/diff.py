@@ -34,14 +34,18 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     from ..analysis.diff import diff_voxels, voxel_report
     from ..errors import InputError
 
-    pa, pb = resolve_map_path(a, "A"), resolve_map_path(b, "B")
-    for name, p in (("A", pa), ("B", pb)):
-        if p.suffix.lower() != ".ot":
-            raise InputError(f"--3d compares two .ot snapshots; {name} {p} is not a .ot file")
-    from ..io.ot import read_ot
+    def snapshot(p: Path, name: str) -> Path:
+        final = Path(p) / "snapshots" / "state_final.npz"
+        return final if Path(p).is_dir() and final.is_file() else resolve_map_path(p, name)
 
-    ka, la, ra = read_ot(pa)
-    kb, lb, rb = read_ot(pb)
+    pa, pb = snapshot(a, "A"), snapshot(b, "B")
+    for name, p in (("A", pa), ("B", pb)):
+        if p.suffix.lower() not in (".ot", ".npz"):
+            raise InputError(f"--3d compares two long-term snapshots (.ot or state .npz); {name} {p} is neither")
+    from ..snapshots import read_snapshot_voxels
+
+    ka, la, ra = read_snapshot_voxels(pa)
+    kb, lb, rb = read_snapshot_voxels(pb)
     if abs(ra - rb) > 1e-9 * max(ra, rb):
         raise InputError(
             f"--3d needs equal resolutions: A {pa} has {ra:g} m voxels, B {pb} {rb:g} m; compare the "
@@ -102,7 +106,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     "--3d",
     "three_d",
     is_flag=True,
-    help="Compare the occupied voxels of two .ot snapshots (counts and IoU) instead of projected maps.",
+    help="Compare the long-term voxels of two snapshots (.ot, state .npz or replay output folders: their final state) in 3D (counts and IoU) instead of projected maps.",
 )
 @click.option(
     "--z-band",
