@@ -7,6 +7,7 @@ reads the same names back. Unknown keys and wrong types are errors that name the
 from __future__ import annotations
 
 import dataclasses
+import math
 import types
 import typing
 from dataclasses import dataclass, field
@@ -49,13 +50,16 @@ class Config:
     replay: ReplayConfig = field(default_factory=ReplayConfig)
 
     def validate(self) -> None:
-        problems = self.map.validate()
+        problems = _non_finite(self)
+        problems += self.map.validate()
         if self.replay.mode not in ("trinary", "scale"):
             problems.append(f"replay.mode must be trinary or scale, got {self.replay.mode!r}")
         if self.replay.snapshot_every <= 0:
             problems.append("replay.snapshot_every must be > 0")
         if self.replay.plan_goal and len(self.replay.plan_goal) != 2:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
+        if self.replay.map_period < 0:
+            problems.append("replay.map_period must be >= 0")
         if self.replay.robot_radius < 0:
             problems.append("replay.robot_radius must be >= 0")
         if self.replay.depth_outlier_radius <= 0:
@@ -64,6 +68,22 @@ class Config:
             problems.append("replay.depth_outlier_min_neighbors must be >= 1")
         if problems:
             raise ConfigError("invalid configuration: " + "; ".join(problems))
+
+
+def _non_finite(obj: Any, prefix: str = "") -> list[str]:
+    """Every float parameter (and float in a list) must be a finite number: NaN or inf would slip
+    through the range checks below (``nan < 0`` is False)."""
+    out = []
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        key = f"{prefix}{f.name}"
+        if dataclasses.is_dataclass(v):
+            out += _non_finite(v, key + ".")
+        elif isinstance(v, float) and not math.isfinite(v):
+            out.append(f"{key} must be a finite number, got {v}")
+        elif isinstance(v, (list, tuple)) and any(isinstance(x, float) and not math.isfinite(x) for x in v):
+            out.append(f"{key} must hold finite numbers, got {list(v)}")
+    return out
 
 
 def to_dict(obj: Any) -> Any:

@@ -602,12 +602,7 @@ class Replay:
             "list": events,
         }
         if self.tracker is not None:
-            final = self.tracker.records[-1] if self.tracker.records else None
-            summary["plan"] = {
-                "goal": list(self.tracker.goal_xy),
-                "plans": len(self.tracker.records),
-                "final_length_m": final.length_m if final else None,
-            }
+            summary["plan"] = self.tracker.summary()
         processing = {}
         self.periods_ms = {}
         for topic, ms in self.counts.frame_ms.items():

@@ -63,3 +63,12 @@ def test_help_does_not_import_heavy_modules():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
+
+
+@pytest.mark.parametrize("key", ["replay.map_period", "replay.robot_radius", "map.layers.tick", "map.resolution"])
+@pytest.mark.parametrize("value", [float("nan"), float("inf")])
+def test_non_finite_parameters_are_refused_by_name(key, value):
+    cfg = Config()
+    set_dotted(cfg, key, value)
+    with pytest.raises(ConfigError, match=key.replace(".", r"\.") + " must be a finite number"):
+        cfg.validate()

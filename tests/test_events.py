@@ -173,7 +173,8 @@ def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
     # tick P shows them free: planner latency = add / remove latency
     assert pillar["appear"]["planner_latency_s"] == pytest.approx(pillar["appear"]["latency_s"], abs=0.21)
     assert pillar["disappear"]["planner_latency_s"] == pytest.approx(pillar["disappear"]["latency_s"], abs=0.21)
-    assert report["events"]["plan"]["plans"] > 100
+    plan = report["events"]["plan"]
+    assert plan["plans"] > 100 and plan["plans_by_outcome"] == {"path": plan["plans"]} and "warning" not in plan
     assert report["events"]["planner_latency_s"]["n"] >= 2
     rows = list(csv.DictReader((out / "events.csv").open()))
     assert any(r["planner_latency_s"] for r in rows)
@@ -182,6 +183,20 @@ def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
 def test_bad_plan_goal_is_one_line(tmp_path):
     r = run(["replay", "--dump-config", "--plan-goal", "3"])
     assert r.exit_code == 2 and "--plan-goal 3: expected X,Y" in r.output
+    r = run(["replay", "--dump-config", "--plan-goal", "nan,1"])
+    assert r.exit_code == 2 and "replay.plan_goal must hold finite numbers" in r.output
+
+
+def test_a_goal_off_the_map_is_said_not_silent(tmp_path):
+    log = pillar_log(tmp_path / "pillar.mcap", present_s=2.0, absent_s=1.0)
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q", "--plan-goal", "100,100"])
+    assert r.exit_code == 0, r.output
+    plan = json.loads((out / "report.json").read_text())["events"]["plan"]
+    assert plan["plans_by_outcome"] == {"goal off the map": plan["plans"]} and plan["plans"] > 10
+    assert plan["final_length_m"] is None
+    assert "ltmap: warning: --plan-goal 100,100: no path at any of" in r.output
+    assert "goal off the map" in plan["warning"]
 
 
 def test_plots_of_the_replay_are_valid_pngs(tmp_path):

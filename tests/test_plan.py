@@ -293,6 +293,8 @@ def test_cli_bad_start_and_goal(tmp_path):
     assert r.exit_code == 2 and "goal" in r.output and "robot radius" in r.output
     r = run(p, "--start", good, "--goal", "10,0.5")
     assert r.exit_code == 2 and "goal (10, 0.5) is off the map" in r.output
+    r = run(p, "--start", good, "--goal", good, "--robot-radius", "nan")
+    assert r.exit_code == 2 and "--robot-radius nan is not a radius" in r.output and "Traceback" not in r.output
     r = run(p, "--start", "abc", "--goal", good)
     assert r.exit_code == 2 and "x,y" in r.output
     r = run(tmp_path / "nothere", "--start", good, "--goal", good)

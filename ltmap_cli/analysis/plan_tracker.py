@@ -32,6 +32,7 @@ class PlanRecord:
     path_xy: np.ndarray | None  # (K, 2) cell centres, None when no path
     newly_blocked_xy: np.ndarray  # (M, 2) cells of the previous path blocked now
     length_m: float | None
+    status: str = "path"  # or why there is none: "no path", "goal off the map", "robot off the map"
 
 
 @dataclass
@@ -56,15 +57,36 @@ class PlanTracker:
         path_xy, length = None, None
         sr, sc = (int(v) for v in world_to_cell(grid, robot_xy[0], robot_xy[1]))
         gr, gc = (int(v) for v in world_to_cell(grid, self.goal_xy[0], self.goal_xy[1]))
-        if 0 <= sr < H and 0 <= sc < W and 0 <= gr < H and 0 <= gc < W:
+        if not (0 <= gr < H and 0 <= gc < W):
+            status = "goal off the map"
+        elif not (0 <= sr < H and 0 <= sc < W):
+            status = "robot off the map"
+        else:
             res = plan_path(blocked, (sr, sc), (gr, gc))
+            status = "no path"
             if res is not None:
                 x, y = cell_to_world(grid, res.path_rc[:, 0], res.path_rc[:, 1])
                 path_xy = np.stack([np.asarray(x, dtype=float), np.asarray(y, dtype=float)], axis=1)
                 length = float(res.length_cells * grid.resolution)
-        rec = PlanRecord(t_s, path_xy, newly, length)
+                status = "path"
+        rec = PlanRecord(t_s, path_xy, newly, length, status)
         self.records.append(rec)
         return rec
+
+    def summary(self) -> dict:
+        """Plans by outcome, and a warning when no tick found a path (no planner latency then)."""
+        by: dict[str, int] = {}
+        for rec in self.records:
+            by[rec.status] = by.get(rec.status, 0) + 1
+        final = self.records[-1] if self.records else None
+        out = {"goal": list(self.goal_xy), "plans": len(self.records), "plans_by_outcome": by,
+               "final_length_m": final.length_m if final else None}  # fmt: skip
+        if not by.get("path"):
+            why = max((k for k in by), key=lambda k: by[k]) if by else "no tick was planned"
+            out["warning"] = (f"--plan-goal {self.goal_xy[0]:g},{self.goal_xy[1]:g}: no path at any of "
+                              f"{len(self.records)} ticks ({why}), so no planner latency; choose a goal "
+                              f"on free space of the map")  # fmt: skip
+        return out
 
     @property
     def final_path_xy(self) -> np.ndarray | None:

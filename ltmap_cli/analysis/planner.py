@@ -399,8 +399,8 @@ def plan_on_grid(
 ) -> PlanResult:
     """Plan from ``start_xy`` to ``goal_xy`` (world metres) on ``grid``. Raises InputError when the
     start or goal is off the map or blocked (naming which), NoPathError when no path exists."""
-    if robot_radius < 0:
-        raise InputError(f"--robot-radius {robot_radius:g} is negative; give a radius >= 0 m")
+    if not robot_radius >= 0 or not math.isfinite(robot_radius):  # NaN fails every comparison
+        raise InputError(f"--robot-radius {robot_radius:g} is not a radius; give a finite number >= 0 m")
     occ = occupied_mask(grid)
     unknown = unknown_mask(grid)
     inflated = inflate(occ, robot_radius / grid.resolution)

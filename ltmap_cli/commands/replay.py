@@ -159,6 +159,9 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     )
     for reason, n in sorted(report["frames_skipped"].items(), key=lambda kv: -kv[1]):
         click.echo(f"  skipped {n} x: {reason}")
+    plan = (report.get("events") or {}).get("plan") or {}
+    if plan.get("warning"):
+        click.echo(f"ltmap: warning: {plan['warning']}", err=True)
     if report.get("stopped_at"):
         click.echo(f"  log cut off: {report['stopped_at']}")
     click.echo(f"wrote {output}/ (map.yaml, long_term.yaml, snapshots/, report.json, config.yaml)")
