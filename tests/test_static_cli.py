@@ -37,6 +37,12 @@ def run(*args):
          "data-length-m"),
         (f'<svg {NS} width="100000000mm" height="100000000mm" viewBox="0 0 1e8 1e8">{ROOM}</svg>', "--max-cells"),
         ("<html><body/></html>", "not <svg>"),
+        (f'<svg {NS} {MM}><g transform="scale(0)">{ROOM}</g></svg>', "no wall shapes"),
+        (f'<svg {NS} {MM}><g id="walls"><line x1="0" y1="500" x2="1000" y2="500" stroke="#000" '
+         'stroke-width="100"/></g><g id="doors"><rect x="-100" y="0" width="1200" height="1000" fill="#000"/>'
+         '</g></svg>', "cover no cell"),
+        (f'<svg {NS} {MM}><circle cx="5" cy="5" r="-3" fill="#000"/></svg>', "negative r"),
+        (f'<svg {NS} {MM}><rect x="0" y="0" width="-2000" height="100" fill="#000"/></svg>', "negative width"),
     ],
 )
 def test_bad_input_is_one_line_exit_2_and_writes_nothing(tmp_path, content, needle):

@@ -118,6 +118,9 @@ def build_from_plan(
     if door_mask is not None:
         wall_mask &= ~door_mask
     n_wall_cells = int(wall_mask.sum())
+    if n_wall_cells == 0:
+        raise PlanError(f"{plan.source}: the wall shapes cover no cell of the {resolution:g} m grid (are they "
+                        "collapsed, e.g. by a scale(0) transform, or all inside doors?); check the drawing")
 
     height = np.where(wall_mask, np.float32(wall_height), np.float32(0)).astype(np.float32)
     seed = None

@@ -38,6 +38,7 @@ PHYSICAL_UNITS = {"mm": 0.001, "cm": 0.01, "m": 1.0, "in": 0.0254, "pt": 0.0254 
 ELEMENT_UNITS = {"", "px", "mm", "cm", "in", "pt", "pc", "%", "em", "ex"}
 LENGTH_ATTRS = ("x", "y", "x1", "y1", "x2", "y2", "width", "height", "r", "rx", "ry", "cx", "cy",
                 "stroke-width")
+SIZE_ATTRS = ("width", "height", "r", "rx", "ry", "stroke-width")  # negative: invalid SVG
 NUMBER_ATTRS = ("d", "points", "transform") + LENGTH_ATTRS
 _LENGTH_RE = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*([A-Za-z%]*)\s*$")
 _NONFINITE_RE = re.compile(r"(?i)nan|inf")
@@ -129,7 +130,11 @@ def _prescan(root, source: str) -> None:
                                 f"its {name} ({value[:60]!r}); fix the coordinates in the drawing")
             if name in LENGTH_ATTRS and tag not in ("svg", "image", "pattern", "mask", "filter",
                                                     "marker", "symbol", "clipPath"):
-                _parse_length(value, f"{_describe_xml(el, counters)} attribute {name}", source, ELEMENT_UNITS)
+                parsed = _parse_length(value, f"{_describe_xml(el, counters)} attribute {name}", source,
+                                       ELEMENT_UNITS)  # fmt: skip
+                if parsed is not None and parsed[0] < 0 and name in SIZE_ATTRS:
+                    raise PlanError(f"{source}: {_describe_xml(el, counters)} has a negative {name} ({value!r}), "
+                                    "which SVG does not allow; fix the shape in the drawing")
 
 
 def _root_dims(root, source: str):
@@ -435,7 +440,7 @@ def parse_plan(
         subs = []
         for parts, closed in _subpaths(shape, px_to_uu):
             pts = builder.points(parts, uu_to_map, scale, r.element)
-            if len(pts) == 0:
+            if len(pts) == 0 or np.ptp(pts, axis=0).max() < 1e-9:  # nothing, or collapsed to a point
                 continue
             if len(pts) > 2 and np.allclose(pts[0], pts[-1], atol=1e-9):
                 closed, pts = True, pts[:-1]
