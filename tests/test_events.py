@@ -119,6 +119,21 @@ def test_grouping_separates_space_and_time():
     assert set(members[first["id"]].tolist()) == {(0 << 6) | 5, (1 << 6) | 5}
 
 
+def test_event_latency_is_first_sight_to_first_in_map():
+    """Issue 8's definition: from the first tick any voxel of the event was an obstacle to the
+    first tick P shows any of them; the per-voxel median is kept beside it."""
+    tr = np.array([
+        [1, 0, (0 << 6) | 5, 20, 5],  # seen from tick 5, in LT at tick 20: 16 ticks
+        [1, 0, (1 << 6) | 5, 12, 8],  # its neighbour, seen from tick 8, in LT at tick 12: 5 ticks
+    ])  # fmt: skip
+    events, _ = find_events(tr, np.zeros((1, 3), dtype=np.int32), 0.05, TickClock(1.0, 0.2))
+    (e,) = events
+    assert e["t_start_s"] == pytest.approx(1.0 + 5 * 0.2) and e["t_in_map_s"] == pytest.approx(1.0 + 13 * 0.2)
+    assert e["latency_s"] == pytest.approx((13 - 5) * 0.2)
+    assert e["latency_median_s"] == pytest.approx((16 + 5) / 2 * 0.2)
+    assert (e["latency_min_s"], e["latency_max_s"]) == pytest.approx((5 * 0.2, 16 * 0.2))
+
+
 def _brute_labels(keys, ticks, window, link):
     """Every pair compared: connected components, labelled by their smallest index."""
     n = len(keys)

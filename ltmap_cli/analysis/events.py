@@ -7,10 +7,13 @@ leave it (``disappear``: LT falls below it, so P shows them free), at ticks no m
 ``window_s`` apart (chained: voxels of a large object that enter over a longer time stay one event).
 
 Per voxel, the core recorded the tick of the crossing and the tick its streak began: the first
-tick it was an obstacle in O (appear) or the first tick it was seen free (disappear). A voxel's latency runs from the start of its streak's first
-tick to the end of the tick P shows the change: (crossing tick - streak start + 1) x tick, so an
-obstacle seen continuously from its first tick enters after exactly st_rise_s. An event's
-latency is the median over its voxels; min and max are kept too. Times are seconds of log time since the log's first message.
+tick it was an obstacle in O (appear) or the first tick it was seen free (disappear). An event's
+latency (the issue's definition) runs from the start of the first tick any of its voxels began
+its streak (``t_start_s``) to the end of the first tick P shows any of them changed
+(``t_in_map_s``), so an obstacle seen continuously from its first tick enters after exactly
+st_rise_s. Per voxel, (crossing tick - streak start + 1) x tick; their median, min and max are
+kept too (``latency_median_s`` etc.: a large object seen bit by bit spreads them). Times are
+seconds of log time since the log's first message.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ APPEAR, DISAPPEAR = 1, 2
 KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}
 
 CSV_COLUMNS = [
-    "id", "kind", "t_start_s", "t_in_map_s", "latency_s", "latency_min_s", "latency_max_s",
+    "id", "kind", "t_start_s", "t_in_map_s", "latency_s", "latency_median_s", "latency_min_s", "latency_max_s",
     "planner_latency_s", "voxels", "cells", "centroid_x", "centroid_y", "centroid_z",
     "min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
 ]  # fmt: skip
@@ -156,7 +159,8 @@ def find_events(
             "kind": KIND_NAME[kind],
             "t_start_s": float(clock.start(since[known].min())) if known.any() else None,
             "t_in_map_s": float(clock.end(ticks.min())),
-            "latency_s": float(np.median(lat)) if len(lat) else None,
+            "latency_s": float(clock.end(ticks.min()) - clock.start(since[known].min())) if known.any() else None,
+            "latency_median_s": float(np.median(lat)) if len(lat) else None,
             "latency_min_s": float(lat.min()) if len(lat) else None,
             "latency_max_s": float(lat.max()) if len(lat) else None,
             "planner_latency_s": None,
