@@ -173,11 +173,13 @@ def yaw_quat(yaw: float) -> tuple[float, float, float, float]:
 
 
 def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
-              extra_types: dict[str, str] | None = None, chunk_size: int = 1024 * 1024) -> Path:
+              extra_types: dict[str, str] | None = None, chunk_size: int = 1024 * 1024,
+              compress: bool = True) -> Path:
     """Write ``messages`` (in the given order) as a log of format ``fmt`` at ``path``.
 
     ``path`` is the bag file, the ROS 2 bag folder or the .mcap file; it must not exist.
-    ``chunk_size`` (bytes) applies to standalone MCAP: small values give several chunks.
+    ``chunk_size`` (bytes) applies to standalone MCAP: small values give several chunks;
+    ``compress=False`` writes ros2-profile MCAP chunks uncompressed (bytes to corrupt by hand).
     Returns ``path``.
     """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -220,7 +222,10 @@ def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
         from mcap_ros2.writer import Writer as McapRos2Writer
 
         with path.open("wb") as f:
-            w = McapRos2Writer(f, chunk_size=chunk_size)
+            from mcap.writer import CompressionType
+
+            w = McapRos2Writer(f, chunk_size=chunk_size,
+                               compression=CompressionType.ZSTD if compress else CompressionType.NONE)
             schemas: dict[str, Any] = {}
             for m in messages:
                 if m.msgtype not in schemas:

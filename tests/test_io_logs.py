@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -262,6 +263,22 @@ def test_corrupt_sqlite_bag_and_corrupt_mcap_chunk(tmp_path):
     with open_logs(path, allow_truncated=True) as logs:
         got = list(logs.messages())
         assert 0 < len(got) < 60 and logs.stats.stopped_at
+
+
+def test_flipped_bytes_that_still_decode_are_caught_by_the_chunk_crc(tmp_path):
+    """Uncompressed chunks: bytes changed inside a scan's ranges still parse as a scan, so only
+    the CRC tells; the damage is named (near which byte) instead of a wrong map."""
+    path = _log(tmp_path, "mcap-ros2", _scans(60), chunk_size=600, compress=False)
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 4] = b"\x00\x00\x80\x3f"  # a float32 1.0 where a range was
+    path.write_bytes(bytes(data))
+    with open_logs(path, allow_truncated=True) as logs:
+        got = list(logs.messages())
+        assert 0 < len(got) < 60
+        assert re.search(r"reading stopped after \d+ messages near byte \d+ \(crc validation failed", logs.stats.stopped_at)
+    with open_logs(path) as logs, pytest.raises(TruncatedLogError, match="--allow-truncated"):
+        list(logs.messages())
 
 
 @pytest.mark.skipif(not (REAL / "ist_pioneer3dx_test1.bag").exists(), reason=f"real logs not in {REAL}")

@@ -188,7 +188,7 @@ class Ros1BagSource(Source):
                 n += 1
                 yield RawMessage(t, conn.topic, i, _deser(store, raw, conn.msgtype, ros1=True))
         except Exception as err:  # noqa: BLE001 - corrupt chunk: stop here, report where
-            self.stopped_at = _stop_text(self.path, n, None, err)
+            self.stopped_at = _stop_text(self.path, n, _tell(self.file), err)
 
     def close(self) -> None:
         self.reader.close()
@@ -448,7 +448,7 @@ class McapSource(Source):
         self._factories = _mcap_factories()
         summary = None
         try:
-            self.reader = SeekingReader(self.file, decoder_factories=self._factories)
+            self.reader = SeekingReader(self.file, validate_crcs=True, decoder_factories=self._factories)
             summary = self.reader.get_summary()
         except Exception:  # noqa: BLE001 - no usable summary: stream instead
             summary = None
@@ -514,7 +514,7 @@ class McapSource(Source):
         counts: dict[str, int] = {}
         with self.path.open("rb") as f:
             try:
-                for record in StreamReader(f, skip_magic=False).records:
+                for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
                     if isinstance(record, Schema):
                         self.schemas[record.id] = record
                     elif isinstance(record, Channel):
@@ -548,7 +548,7 @@ class McapSource(Source):
                 n += 1
                 yield RawMessage(msg.log_time, ch.topic, i, self._thunk(ch, msg.data))
         except Exception as err:  # noqa: BLE001 - corrupt chunk: stop here, report where
-            self.stopped_at = _stop_text(self.path, n, None, err)
+            self.stopped_at = _stop_text(self.path, n, _tell(self.file), err)
 
     def close(self) -> None:
         self.file.close()
