@@ -239,3 +239,122 @@ def test_plan_walls_come_from_the_svg(tmp_path):
     c10 = 1.95 / math.cos(math.radians(10))
     c35 = 1.95 / math.cos(math.radians(35))
     np.testing.assert_allclose(r, [c10, c35, c10, c35, c10, c35, c10, c35], atol=1e-6)
+
+
+# ----------------------------------------------------------------------------- moving doors
+
+# an interior wall on x = 3 (faces at 2.95 and 3.05) with a 1 m opening at y 1.5..2.5; the door spans
+# the opening, hinge at `from` = (3, 1.5); a door open for t < 5 closes over 2 s to be closed at 5..7
+# and opens over 2 s after 7
+OPENING = [{"points": [[3, 0], [3, 1.5]], "thickness": 0.1}, {"points": [[3, 2.5], [3, 4]], "thickness": 0.1}]
+
+
+def door_scenario(**door):
+    return scenario(
+        walls=ROOM + OPENING,
+        doors=[{"id": "d", "from": [3, 1.5], "to": [3, 2.5], "thickness": 0.04, "closed": [[5, 7]], **door}],
+        laser={"beams": 4, "mount": {"xyz": [0, 0, 0.25]}},
+    )
+
+
+def across_the_opening(sc, t, ys):
+    """Ranges of rays parallel to +x from x = 2 at the heights y, through the opening."""
+    o = np.array([[2.0, y, 0.25] for y in ys])
+    return World(sc).at(t).cast(o, np.tile([1.0, 0.0, 0.0], (len(ys), 1)))
+
+
+@pytest.mark.parametrize("swing, t", [("right", 4.0), ("left", 4.0), (-1, 8.0), (1, 8.0)])
+def test_hinged_door_halfway_through_its_swing(swing, t):
+    # closed 5..7, motion_s 2: at t = 4 (1 s into the closing) and t = 8 (1 s into the opening) the
+    # leaf is at 45 deg. Swing right (-1, clockwise seen from above, away from the robot): the leaf
+    # from the hinge (3, 1.5) points along (sin 45, cos 45); the beam y = 2 meets its centre line 0.5 m
+    # past the hinge along y, at x = 3.5, and its near face (0.02 m off, toward (-cos 45, sin 45))
+    # 0.02 / cos 45 = 0.04 / sqrt 2 earlier: r = 1.5 - 0.0282843 = 1.4717157. Swing left (+1, toward
+    # the robot): the leaf points along (-sin 45, cos 45), meets the beam at x = 2.5: r = 0.4717157.
+    sc = door_scenario(kind="hinged", swing=swing, motion_s=2)
+    want = {"right": 1.5, -1: 1.5, "left": 0.5, 1: 0.5}[swing] - 0.04 / math.sqrt(2)
+    assert want == pytest.approx(1.4717157 if swing in ("right", -1) else 0.4717157, abs=1e-7)
+    assert scan_at(sc, t)[2] == pytest.approx(want, abs=1e-9)
+
+
+def test_hinged_door_closed_open_and_timing():
+    sc = door_scenario(kind="hinged", swing="right", motion_s=2)
+    ys = np.linspace(1.6, 2.4, 9)
+    # closed (5 <= t < 7): the leaf fills the opening, its face at x = 2.98
+    np.testing.assert_allclose(across_the_opening(sc, 5.0, ys), 0.98, atol=1e-9)
+    np.testing.assert_allclose(across_the_opening(sc, 6.99, ys), 0.98, atol=1e-9)
+    # fully open (t <= 3, t >= 9): the leaf lies along y = 1.5 (|y - 1.5| <= 0.02), every ray through
+    # the opening reaches the room's east wall at 3.95
+    for t in (0.0, 3.0, 9.0, 9.9):
+        np.testing.assert_allclose(across_the_opening(sc, t, ys), 1.95, atol=1e-9)
+    # the angle is linear in time: at t = 4.5 (three quarters of the closing), 22.5 deg open; the y = 2
+    # ray meets the centre line at x = 3 + 0.5 tan(22.5 deg), the near face 0.02 / cos(22.5 deg) earlier
+    a = math.radians(22.5)
+    want = 1.0 + 0.5 * math.tan(a) - 0.02 / math.cos(a)
+    assert want == pytest.approx(1.1854589, abs=1e-7)
+    assert across_the_opening(sc, 4.5, [2.0])[0] == pytest.approx(want, abs=1e-9)
+    # a smaller open angle: 30 deg right, fully open; the ray at y = 2 meets the leaf 0.5 m past the hinge
+    # along y, at x = 3 + 0.5 tan 30 deg, near face 0.02 / cos 30 deg earlier
+    sc = door_scenario(kind="hinged", swing="right", open_angle_deg=30, motion_s=0)
+    a = math.radians(30)
+    want = 1.0 + 0.5 * math.tan(a) - 0.02 / math.cos(a)
+    assert across_the_opening(sc, 0.0, [2.0])[0] == pytest.approx(want, abs=1e-9)
+    assert across_the_opening(sc, 5.0, [2.0])[0] == pytest.approx(0.98, abs=1e-9)  # motion_s 0: at once
+
+
+def test_sliding_door_half_open_blocks_half_the_opening():
+    sc = door_scenario(kind="sliding", motion_s=2)
+    ys = np.array([1.6, 1.7, 1.8, 1.9, 2.1, 2.2, 2.3, 2.4])
+    # t = 8: 1 s into the 2 s opening, the leaf has slid 0.5 m toward `from`: it spans y 1.0..2.0
+    r = across_the_opening(sc, 8.0, ys)
+    np.testing.assert_allclose(r[:4], 0.98, atol=1e-9)  # the leaf's face at x = 2.98
+    np.testing.assert_allclose(r[4:], 1.95, atol=1e-9)  # through, to the east wall
+    np.testing.assert_allclose(across_the_opening(sc, 6.0, ys), 0.98, atol=1e-9)  # closed
+    # open: the leaf is inside the wall (y 0.5..1.5, thinner than it): the whole opening is free
+    np.testing.assert_allclose(across_the_opening(sc, 0.0, ys), 1.95, atol=1e-9)
+    np.testing.assert_allclose(across_the_opening(sc, 9.0, ys), 1.95, atol=1e-9)
+    # closing, 1.5 s of 2 done at t = 4.5: a quarter open, the leaf spans y 1.25..2.25
+    r = across_the_opening(sc, 4.5, [2.2, 2.3])
+    np.testing.assert_allclose(r, [0.98, 1.95], atol=1e-9)
+
+
+def test_box_door_kind_is_the_default():
+    a = door_scenario()
+    b = door_scenario(kind="box")
+    assert a.doors[0].kind == b.doors[0].kind == "box"
+    ys = np.linspace(1.6, 2.4, 9)
+    for t in (0.0, 4.0, 4.99, 5.0, 6.99, 7.0, 8.0):
+        want = 0.98 if 5 <= t < 7 else 1.95  # appears and disappears at once, no motion
+        np.testing.assert_allclose(across_the_opening(a, t, ys), want, atol=1e-9)
+        np.testing.assert_allclose(across_the_opening(b, t, ys), want, atol=1e-9)
+
+
+def test_door_open_fraction_with_close_intervals():
+    from ltmap_cli.sim.scene import door_motion, door_open_fraction
+
+    sc = door_scenario(kind="sliding", motion_s=2, closed=[[1, 3], [4, 6]])
+    d = sc.doors[0]
+    # starts part way through the closing (1 s of 2 left at t = 0); between the intervals (1 s apart)
+    # it opens for 0.5 s and closes again, never fully open
+    got = [door_open_fraction(d, t) for t in (0.0, 0.5, 1.0, 3.0, 3.25, 3.5, 3.75, 4.0, 7.0, 8.0)]
+    np.testing.assert_allclose(got, [0.5, 0.25, 0, 0, 0.125, 0.25, 0.125, 0, 0.5, 1.0])
+    assert door_motion(d, 10.0) == [[0.0, 1.0], [3.0, 4.0], [6.0, 8.0]]
+
+
+def test_moving_doors_in_the_ground_truth():
+    from ltmap_cli.sim.simulate import Simulator
+
+    sc = door_scenario(kind="hinged", swing="right", motion_s=2)
+    gt = {o["id"]: o for o in Simulator(sc).ground_truth()["objects"]}["d"]
+    assert (gt["kind"], gt["shape"], gt["category"]) == ("door", "hinged", "door")
+    assert gt["present"] == [[5.0, 7.0]]  # fully closed
+    assert (gt["hinge"], gt["swing"], gt["open_angle_deg"]) == ([3.0, 1.5], "right", 90.0)
+    assert gt["motion_s"] == 2.0
+    assert gt["moving"] == [[3.0, 5.0], [7.0, 9.0]]
+    assert gt["parts"][0]["center"] == pytest.approx([3.0, 2.0, 1.0])  # closed: fills the opening
+    assert gt["parts"][0]["size"] == pytest.approx([1.0, 0.04, 2.0])
+    assert gt["open_parts"][0]["center"] == pytest.approx([3.5, 1.5, 1.0])  # turned 90 deg clockwise
+    assert gt["open_parts"][0]["yaw_deg"] == pytest.approx(0.0)
+    box = {o["id"]: o for o in Simulator(door_scenario()).ground_truth()["objects"]}["d"]
+    assert sorted(box) == ["category", "from", "id", "kind", "parts", "present", "shape", "to"]
+    assert box["shape"] == "box"

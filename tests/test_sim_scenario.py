@@ -58,6 +58,20 @@ def edited(**changes):
      "robot.path.waypoints[1].t", "not after the previous waypoint"),
     (edited(plan="nowhere.svg"), "plan", "no such file"),
     (edited(doors=[{"from": [0, 0], "to": [0, 0]}]), "doors[0].to", "zero width"),
+    (edited(doors=[{"kind": "revolving", "from": [0, 0], "to": [1, 0]}]), "doors[0].kind",
+     "unknown kind 'revolving'; use one of box, hinged, sliding"),
+    (edited(doors=[{"kind": "hinged", "from": [0, 0], "to": [1, 0], "motion_s": -1}]), "doors[0].motion_s",
+     "-1 is too small; use a value >= 0"),
+    (edited(doors=[{"kind": "hinged", "from": [0, 0], "to": [1, 0], "swing": "up"}]), "doors[0].swing",
+     "expected left, right, +1 or -1, got 'up'"),
+    (edited(doors=[{"kind": "hinged", "from": [0, 0], "to": [1, 0], "swing": [1]}]), "doors[0].swing",
+     "expected left, right, +1 or -1"),
+    (edited(doors=[{"kind": "hinged", "from": [0, 0], "to": [1, 0], "open_angle_deg": 200}]),
+     "doors[0].open_angle_deg", "too large"),
+    (edited(doors=[{"kind": "sliding", "from": [0, 0], "to": [1, 0], "swing": "left"}]), "doors[0].swing",
+     "only for a hinged door, not kind sliding"),
+    (edited(doors=[{"from": [0, 0], "to": [1, 0], "motion_s": 2}]), "doors[0].motion_s",
+     "only for a hinged or sliding door, not kind box"),
     (edited(people=[{"path": [{"t": 0, "x": 0, "y": 0}]}]), "people[0].path", "at least 2 points"),
     (edited(seed=-1), "seed", "non-negative integer"),
     (edited(duration=0), "duration", "too small"),
@@ -108,3 +122,20 @@ def test_duplicate_ids(tmp_path):
     doc = edited(doors=[{"id": "box0", "from": [0, 0], "to": [1, 0]}])
     with pytest.raises(ConfigError, match=r"doors\[0\]\.id: id 'box0' is used twice"):
         parse_scenario(doc, "s.yaml")
+
+
+def test_door_kinds_and_defaults():
+    doc = edited(doors=[
+        {"id": "a", "from": [0, 0], "to": [1, 0], "closed": [[1, 2]]},
+        {"id": "b", "kind": "hinged", "from": [0, 1], "to": [1, 1]},
+        {"id": "c", "kind": "hinged", "from": [0, 2], "to": [1, 2], "swing": "right", "open_angle_deg": 110,
+         "motion_s": 0},
+        {"id": "d", "kind": "hinged", "from": [0, 3], "to": [1, 3], "swing": -1},
+        {"id": "e", "kind": "sliding", "from": [0, 4], "to": [1, 4], "motion_s": 2.5},
+    ])  # fmt: skip
+    a, b, c, d, e = parse_scenario(doc, "s.yaml").doors
+    assert (a.kind, a.closed, a.thickness, a.height) == ("box", [(1.0, 2.0)], 0.04, 2.0)
+    assert (b.kind, b.motion_s, b.open_angle_deg, b.swing) == ("hinged", 1.0, 90.0, 1)
+    assert (c.motion_s, c.open_angle_deg, c.swing) == (0.0, 110.0, -1)
+    assert d.swing == -1
+    assert (e.kind, e.motion_s) == ("sliding", 2.5)

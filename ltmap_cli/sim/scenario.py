@@ -16,6 +16,8 @@ from ..errors import ConfigError
 
 OBJECT_KINDS = ("box", "cylinder", "sphere", "table", "chair")
 ENCODINGS = ("16UC1", "32FC1")
+DOOR_KINDS = ("box", "hinged", "sliding")
+SWINGS = {"left": 1, "right": -1, 1: 1, -1: -1}
 
 
 @dataclass
@@ -105,12 +107,24 @@ class Obj:
 
 @dataclass
 class Door:
+    """A door in the opening from ``p1`` to ``p2``, closed during the ``closed`` intervals.
+
+    ``box``: a leaf filling the opening while closed, nothing while open. ``hinged``: a leaf
+    rotating about a hinge at ``p1``, by ``open_angle_deg`` to the ``swing`` side (+1: left of the
+    direction p1 -> p2, counterclockwise seen from above; -1: right) when open. ``sliding``: a leaf
+    translating along the door line toward ``p1`` by the opening's width when open. Both move
+    for ``motion_s`` seconds: closing ends at ``t_on``, opening starts at ``t_off``."""
+
     id: str
     p1: tuple[float, float]
     p2: tuple[float, float]
     thickness: float
     height: float
     closed: list[tuple[float, float]]
+    kind: str = "box"  # box | hinged | sliding
+    motion_s: float = 1.0
+    open_angle_deg: float = 90.0
+    swing: int = 1  # +1 left (counterclockwise), -1 right
 
 
 @dataclass
@@ -481,7 +495,26 @@ def _object(ctx: _Ctx, v: Any, i: int, duration: float, ids: set[str]) -> Obj:
 
 def _door(ctx: _Ctx, v: Any, i: int, duration: float, ids: set[str]) -> Door:
     key = f"doors[{i}]"
-    d = ctx.mapping(v, key, ("id", "from", "to", "thickness", "height", "closed"), ("from", "to"))
+    d = ctx.mapping(
+        v,
+        key,
+        ("id", "kind", "from", "to", "thickness", "height", "closed", "motion_s", "open_angle_deg", "swing"),
+        ("from", "to"),
+    )
+    kind = d.get("kind", "box")
+    if kind not in DOOR_KINDS:
+        raise ctx.fail(f"{key}.kind", f"unknown kind {_show(kind)}", f"use one of {', '.join(DOOR_KINDS)}")
+    for k, kinds in (
+        ("motion_s", ("hinged", "sliding")),
+        ("open_angle_deg", ("hinged",)),
+        ("swing", ("hinged",)),
+    ):
+        if k in d and kind not in kinds:
+            raise ctx.fail(
+                f"{key}.{k}",
+                f"only for a {' or '.join(kinds)} door, not kind {kind}",
+                f"remove it or set kind: {kinds[0]}",
+            )
     did = ctx.text(d, "id", key, f"door{i}")
     if did in ids:
         raise ctx.fail(
@@ -492,13 +525,24 @@ def _door(ctx: _Ctx, v: Any, i: int, duration: float, ids: set[str]) -> Door:
     p2 = ctx.vector(d["to"], 2, f"{key}.to")
     if math.dist(p1, p2) < 1e-6:
         raise ctx.fail(f"{key}.to", "the door has zero width", "give the two ends of the opening")
+    swing = d.get("swing", "left")
+    if isinstance(swing, bool) or not isinstance(swing, (str, int, float)) or swing not in SWINGS:
+        raise ctx.fail(
+            f"{key}.swing",
+            f"expected left, right, +1 or -1, got {_show(swing)}",
+            "write left (counterclockwise about the hinge at from, seen from above) or right",
+        )
     return Door(
         did,
-        p1,
-        p2,
-        ctx.number(d, "thickness", key, 0.04, lo=0, lo_open=True),  # type: ignore[arg-type]
+        p1,  # type: ignore[arg-type]
+        p2,  # type: ignore[arg-type]
+        ctx.number(d, "thickness", key, 0.04, lo=0, lo_open=True),
         ctx.number(d, "height", key, 2.0, lo=0, lo_open=True),
         ctx.intervals(d.get("closed", []), f"{key}.closed", duration),
+        kind=kind,
+        motion_s=ctx.number(d, "motion_s", key, 1.0, lo=0),
+        open_angle_deg=ctx.number(d, "open_angle_deg", key, 90.0, lo=0, hi=180, lo_open=True),
+        swing=SWINGS[swing],
     )
 
 

@@ -5,7 +5,8 @@ Primitives (all in the map frame, metres):
 - wall faces: vertical rectangles over a 2D segment ``(x1, y1, x2, y2, z0, z1)``; a wall polygon
   extruded from 0 to ``wall_height`` is the set of its boundary edges (a ray can only enter a
   closed extruded polygon through a side face while it stays below the top);
-- boxes: centre, half sizes, yaw (slab method in the box frame);
+- boxes: centre, half sizes, yaw (slab method in the box frame); a door leaf is one, turned about
+  its hinge (hinged) or shifted along the door line (sliding) as the door opens;
 - vertical cylinders: centre x, y, radius, z0, z1 (side and both caps);
 - spheres: centre, radius;
 - the floor plane z = 0 and an optional ceiling plane.
@@ -195,14 +196,73 @@ def object_parts(o: Obj) -> list[dict]:
 
 
 def door_part(d: Door) -> dict:
+    """The closed leaf: a box filling the opening from ``p1`` to ``p2``."""
+    return door_leaf(d, 0.0)
+
+
+def door_leaf(d: Door, f: float) -> dict:
+    """The leaf of a door open by the fraction ``f`` (0: closed, 1: open), as a ground-truth box.
+
+    hinged: turned about the hinge at ``p1`` by ``f * open_angle_deg`` to the ``swing`` side;
+    sliding: shifted along the door line toward ``p1`` by ``f`` times the width; box: closed."""
     (x1, y1), (x2, y2) = d.p1, d.p2
     length = math.hypot(x2 - x1, y2 - y1)
+    yaw = math.atan2(y2 - y1, x2 - x1)
+    cx, cy = (x1 + x2) / 2, (y1 + y2) / 2
+    if f > 0.0 and d.kind == "hinged":
+        yaw += d.swing * math.radians(f * d.open_angle_deg)
+        cx, cy = x1 + length / 2 * math.cos(yaw), y1 + length / 2 * math.sin(yaw)
+    elif f > 0.0 and d.kind == "sliding":
+        cx, cy = cx - f * (x2 - x1), cy - f * (y2 - y1)
     return {
         "type": "box",
-        "center": [(x1 + x2) / 2, (y1 + y2) / 2, d.height / 2],
+        "center": [cx, cy, d.height / 2],
         "size": [length, d.thickness, d.height],
-        "yaw_deg": math.degrees(math.atan2(y2 - y1, x2 - x1)),
+        "yaw_deg": math.degrees(yaw),
     }
+
+
+def door_open_fraction(d: Door, t: float) -> float:
+    """How far a door is open at time t: 0 during its ``closed`` intervals, 1 well outside them,
+    linear over the ``motion_s`` before each ``t_on`` (closing) and after each ``t_off`` (opening).
+    With intervals closer than ``2 * motion_s`` the door does not open fully in between."""
+    f = 1.0
+    m = d.motion_s if d.kind != "box" else 0.0
+    for on, off in d.closed:
+        if on <= t < off:
+            return 0.0
+        if m > 0.0 and on - m < t < on:
+            f = min(f, (on - t) / m)
+        elif m > 0.0 and off <= t < off + m:
+            f = min(f, (t - off) / m)
+    return f
+
+
+def door_motion(d: Door, duration: float) -> list[list[float]]:
+    """The intervals (within the log) during which a hinged or sliding door moves."""
+    if d.kind == "box" or d.motion_s <= 0.0:
+        return []
+    out: list[list[float]] = []
+    bounds = [0.0] + [x for iv in d.closed for x in iv] + [duration]
+    for i, (on, off) in enumerate(d.closed):
+        # closing after the previous interval's end, opening until the next one's start
+        for a, b in (
+            (max(on - d.motion_s, bounds[2 * i]), on),
+            (off, min(off + d.motion_s, bounds[2 * i + 3])),
+        ):
+            if b > a:
+                if out and a <= out[-1][1]:
+                    out[-1][1] = max(out[-1][1], b)
+                else:
+                    out.append([a, b])
+    return out
+
+
+def door_at(d: Door, t: float) -> dict | None:
+    """The door's leaf at time t, or None when there is none (an open ``box`` door)."""
+    if d.kind == "box":
+        return door_part(d) if active(d.closed, t) else None
+    return door_leaf(d, door_open_fraction(d, t))
 
 
 def active(intervals: list[tuple[float, float]], t: float) -> bool:
@@ -234,7 +294,7 @@ class World:
         cyls: list[list[float]] = []
         sphs: list[list[float]] = []
         parts = [p for o in self.sc.objects if active(o.present, t) for p in self.object_parts[o.id]]
-        parts += [self.door_parts[d.id] for d in self.sc.doors if active(d.closed, t)]
+        parts += [leaf for d in self.sc.doors if (leaf := door_at(d, t)) is not None]
         for p in parts:
             if p["type"] == "box":
                 boxes.append(box_row(*p["center"], *p["size"], math.radians(p["yaw_deg"])))

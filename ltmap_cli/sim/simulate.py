@@ -26,7 +26,7 @@ import numpy as np
 
 from .logwriter import LogWriter
 from .scenario import Scenario
-from .scene import World, active, person_at, robot_pose
+from .scene import World, active, door_leaf, door_motion, person_at, robot_pose
 from .sensors import (
     R_LINK_OPTICAL,
     laser_angles,
@@ -303,18 +303,25 @@ class Simulator:
                 }
             )
         for d in sc.doors:
-            objects.append(
-                {
-                    "id": d.id,
-                    "kind": "door",
-                    "shape": "box",
-                    "category": "door",
-                    "from": list(d.p1),
-                    "to": list(d.p2),
-                    "parts": [self.world.door_parts[d.id]],
-                    "present": [list(p) for p in d.closed],
-                }
-            )
+            entry = {
+                "id": d.id,
+                "kind": "door",
+                "shape": d.kind,  # box | hinged | sliding
+                "category": "door",
+                "from": list(d.p1),
+                "to": list(d.p2),
+                "parts": [self.world.door_parts[d.id]],  # the closed leaf
+                "present": [list(p) for p in d.closed],  # fully closed
+            }
+            if d.kind != "box":  # a moving leaf (box doors keep the entry they always had)
+                entry["motion_s"] = d.motion_s
+                if d.kind == "hinged":
+                    entry["hinge"] = list(d.p1)
+                    entry["open_angle_deg"] = d.open_angle_deg
+                    entry["swing"] = "left" if d.swing > 0 else "right"
+                entry["moving"] = door_motion(d, sc.duration)
+                entry["open_parts"] = [door_leaf(d, 1.0)]
+            objects.append(entry)
         for p in sc.people:
             objects.append(
                 {
