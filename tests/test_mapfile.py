@@ -263,8 +263,16 @@ def test_bad_mode_and_bad_yaml(tmp_path):
 def test_write_rejects_bad_parameters(tmp_path):
     with pytest.raises(ConfigError, match="free_thresh 0.25 would make map_server read unknown"):
         write_map(tmp_path / "m.yaml", _grid(), free_thresh=0.25)
-    with pytest.raises(ConfigError, match="map mode must be 'trinary' or 'scale'"):
-        write_map(tmp_path / "m.yaml", _grid(), mode="raw")
+    with pytest.raises(ConfigError, match="map mode must be 'trinary', 'scale' or 'raw'"):
+        write_map(tmp_path / "m.yaml", _grid(), mode="ternary")
+    with pytest.raises(ConfigError, match="negate must be true or false"):
+        write_map(tmp_path / "m.yaml", _grid(), negate=2)
+    # grey 0 has occ exactly 1.0, which is not > 1.0: map_server would read it unknown
+    with pytest.raises(ConfigError, match="occupied_thresh 1.0 would make map_server read occupied"):
+        write_map(tmp_path / "m.yaml", _grid(), occupied_thresh=1.0)
+    # grey 205 has occ 0.19608 > 0.195: map_server would read unknown as occupied
+    with pytest.raises(ConfigError, match="occupied_thresh 0.195 would"):
+        write_map(tmp_path / "m.yaml", _grid(), occupied_thresh=0.195, free_thresh=0.19, negate=True)
     with pytest.raises(ValueError, match="non-empty 2D grid"):
         write_map(tmp_path / "m.yaml", GridMap(np.zeros((0, 3), np.int8), 0.05))
     assert list(tmp_path.iterdir()) == []
@@ -289,3 +297,103 @@ def test_sixteen_bit_pgm(tmp_path):
     raster = np.array([0, 1000, 700], dtype=">u2").tobytes()
     (tmp_path / "map.pgm").write_bytes(b"P5\n3 1\n1000\n" + raster)
     np.testing.assert_array_equal(read_map_yaml(_yaml(tmp_path)).data[0], [100, 0, -1])
+
+
+# --------------------------------------------------------------------------------------------
+# every mode x negate: written pixels computed by hand, read back by our reader and by nav2's
+# formula written out here (occ = shade if negate else 1 - shade; raw: round(shade * 255))
+
+# one row, bottom = row 0: occupied, free, unknown, intermediate cells and out-of-range values
+MODE_CELLS = np.array([[100, 0, -1, 20, 21, 50, 64, 65, 37, 101]], dtype=np.int16)
+
+# map_saver with free 0.196 / occupied 0.65: free_int rint(19.6) = 20, occupied_int 65
+# trinary: <= 20 -> 254, >= 65 -> 0, else (and -1, 101) -> 205
+TRINARY_PIXELS = [0, 254, 205, 254, 205, 205, 205, 0, 205, 205]
+# scale: round(255 * (100 - v) / 100): 0, 255, (unknown 205), 204, 201.45 -> 201, 127.5 -> 128,
+# 91.8 -> 92, 89.25 -> 89, 160.65 -> 161, (101 unknown 205)
+SCALE_PIXELS = [0, 255, 205, 204, 201, 128, 92, 89, 161, 205]
+SCALE_ALPHA = [255, 255, 0, 255, 255, 255, 255, 255, 255, 0]
+# raw: the cell value; outside 0..100 -> 255
+RAW_PIXELS = [100, 0, 255, 20, 21, 50, 64, 65, 37, 255]
+
+
+def _nav2_cells(pixels, alpha, mode: str, negate: bool, occ_t: float = 0.65, free_t: float = 0.196):
+    out = []
+    for p, a in zip(pixels, alpha):
+        shade = p / 255.0
+        occ = shade if negate else 1.0 - shade
+        if mode == "raw":
+            v = round(shade * 255)
+            out.append(v if 0 <= v <= 100 else -1)
+        elif mode == "scale" and a != 255:
+            out.append(-1)
+        elif occ > occ_t:
+            out.append(100)
+        elif occ < free_t:
+            out.append(0)
+        elif mode == "scale":
+            out.append(int(np.rint((occ - free_t) / (occ_t - free_t) * 100.0)))
+        else:
+            out.append(-1)
+    return out
+
+
+# what our reader gives back for MODE_CELLS, by hand, whatever negate says:
+# trinary: 254 -> occ 0.0039 free; 205 -> occ 0.19608 (not < 0.196) unknown; 0 -> occupied
+EXPECT_TRINARY = [100, 0, -1, 0, -1, -1, -1, 100, -1, -1]
+# scale: occ = v/100 (within 1/510); < 0.196 -> 0; > 0.65 -> 100; between rint((occ - 0.196)/0.454*100):
+# 20: occ 1 - 204/255 = 0.2 -> rint(0.88) = 1; 21: 1 - 201/255 = 0.21176 -> rint(3.47) = 3;
+# 50: 0.49804 -> rint(66.53) = 67; 64: 1 - 92/255 = 0.63922 -> rint(97.62) = 98;
+# 65: 1 - 89/255 = 0.65098 > 0.65 -> 100; 37: 1 - 161/255 = 0.36863 -> rint(38.02) = 38
+EXPECT_SCALE = [100, 0, -1, 1, 3, 67, 98, 100, 38, -1]
+# raw: the value itself, out of range -> unknown
+EXPECT_RAW = [100, 0, -1, 20, 21, 50, 64, 65, 37, -1]
+
+
+@pytest.mark.parametrize("negate", [False, True])
+@pytest.mark.parametrize("mode", ["trinary", "scale", "raw"])
+def test_every_mode_and_negate_round_trip(tmp_path, mode, negate):
+    grid = GridMap(data=MODE_CELLS, resolution=0.05, origin=(-3.0, 4.5, 0.25))
+    write_map(tmp_path / "m.yaml", grid, mode=mode, negate=negate)
+    text = (tmp_path / "m.yaml").read_text()
+    image = "m.png" if mode == "scale" else "m.pgm"
+    assert f"image: {image}\n" in text and f"mode: {mode}\n" in text
+    assert f"negate: {int(negate)}\n" in text
+    assert "occupied_thresh: 0.65\n" in text and "free_thresh: 0.196\n" in text
+    assert "origin: [-3.0, 4.5, 0.25]\n" in text and "resolution: 0.05\n" in text
+
+    pgm = _parse_p5((tmp_path / "m.pgm").read_bytes())[0].tolist()
+    png = np.asarray(Image.open(tmp_path / "m.png"))
+    if mode == "trinary":
+        # negate: the negated image, occupied 255, free 1, unknown 50
+        hand = [255 - p for p in TRINARY_PIXELS] if negate else TRINARY_PIXELS
+        assert pgm == hand and png.tolist() == [hand]
+        alpha = [255] * len(hand)
+        expect = EXPECT_TRINARY
+    elif mode == "scale":
+        hand = [255 - p for p in SCALE_PIXELS] if negate else SCALE_PIXELS
+        assert pgm == hand
+        assert png[0, :, 0].tolist() == hand and png[0, :, 1].tolist() == SCALE_ALPHA
+        alpha = SCALE_ALPHA
+        expect = EXPECT_SCALE
+    else:
+        # nav2 ignores negate in raw mode: the same bytes either way
+        hand = RAW_PIXELS
+        assert pgm == hand and png.tolist() == [hand]
+        alpha = [255] * len(hand)
+        expect = EXPECT_RAW
+    assert _nav2_cells(hand, alpha, mode, negate) == expect
+    back = read_map_yaml(tmp_path / "m.yaml")
+    assert back.data.tolist() == [expect]
+    assert back.resolution == 0.05 and back.origin == (-3.0, 4.5, 0.25)
+
+
+def test_negate_and_raw_keep_row_order(tmp_path):
+    # 2 x 3, row 0 = bottom: image row 0 is the top row (cells 0, 100, 37)
+    data = np.array([[-1, 50, 0], [0, 100, 37]], dtype=np.int8)
+    write_map(tmp_path / "r.yaml", GridMap(data, 0.1), mode="raw", negate=True, png=False)
+    assert _parse_p5((tmp_path / "r.pgm").read_bytes()).tolist() == [[0, 100, 37], [255, 50, 0]]
+    assert read_map_yaml(tmp_path / "r.yaml").data.tolist() == data.tolist()
+    write_map(tmp_path / "t.yaml", GridMap(data, 0.1), negate=True, png=False)
+    assert _parse_p5((tmp_path / "t.pgm").read_bytes()).tolist() == [[1, 255, 50], [50, 50, 1]]
+    assert read_map_yaml(tmp_path / "t.yaml").data.tolist() == [[-1, -1, 0], [0, 100, -1]]

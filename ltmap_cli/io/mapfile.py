@@ -30,10 +30,19 @@ Writing follows nav2_map_server ``map_saver`` (``tryWriteMapToFile``):
   a transparent pixel. A PGM has no alpha, so in scale mode the map image that the YAML names is
   ``<stem>.png`` (grey + alpha, exactly what map_saver writes in scale mode); ``<stem>.pgm`` is
   still written, with unknown as 205, for tools that want a PGM.
+- raw: the byte is the cell value, cell 0..100 -> grey 0..100, unknown (or any value outside
+  0..100) -> 255 (map_saver: q = cell / 255 * MaxRGB, else MaxRGB). nav2 reads it back
+  exactly (v = round(shade * 255), 0..100 -> v, else -1); the YAML names the PGM.
+- negate (map_saver always writes ``negate: 0``; we add it): in trinary and scale mode the image
+  is the negated one, every grey g (and the scale PGM's unknown 205) written as 255 - g, so that
+  occ = shade reads back the same cells (trinary: occupied 255, free 1, unknown 50). nav2 ignores
+  negate in raw mode, so raw pixels do not change with it and the YAML just says ``negate: 1``
+  (ROS 1 map_server would apply it in raw mode and read 255 - v: write raw maps for ROS 1
+  without negate).
 - The YAML carries full float precision (map_saver rounds to 3 significant digits, which moves
   origins of large maps).
 
-Preview PNG: in trinary mode ``<stem>.png`` holds the very same pixels as ``<stem>.pgm`` (one
+Preview PNG: in trinary and raw mode ``<stem>.png`` holds the very same pixels as ``<stem>.pgm`` (one
 pixel per cell, no upscaling: image viewers zoom, and the file stays a faithful copy).
 """
 
@@ -373,6 +382,34 @@ def scale_pixels(data: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return grey, alpha
 
 
+def raw_pixels(data: np.ndarray) -> np.ndarray:
+    """map_saver's raw grey level per cell: the cell value for 0..100, 255 for anything else."""
+    cells = data.astype(np.int32)
+    known = (cells >= 0) & (cells <= 100)
+    return np.where(known, cells, 255).astype(np.uint8)
+
+
+def _check_trinary_levels(occupied_thresh: float, free_thresh: float, negate: bool) -> None:
+    """The three trinary grey levels must read back (with the reader's own arithmetic) as
+    occupied, free and unknown; else ConfigError naming the threshold at fault."""
+    levels = np.array([PIXEL_OCCUPIED, PIXEL_FREE, PIXEL_UNKNOWN], dtype=np.uint32)
+    if negate:
+        levels = 255 - levels
+    colour = np.repeat((levels * 257)[None, :, None], 3, axis=2)
+    occupied, free, unknown = (int(v) for v in cells_from_image(
+        colour, None, "trinary", negate, occupied_thresh, free_thresh)[0])  # fmt: skip
+    if free != FREE or unknown == FREE:
+        raise ConfigError(
+            f"free_thresh {free_thresh} would make map_server read unknown (grey 205) or free (grey 254) "
+            f"wrongly; use a value in (0.0039, 0.1960], e.g. 0.196"
+        )
+    if occupied != OCCUPIED or unknown == OCCUPIED:
+        raise ConfigError(
+            f"occupied_thresh {occupied_thresh} would make map_server read occupied (grey 0) or unknown "
+            f"(grey 205) wrongly; use a value in [0.1961, 1.0), e.g. 0.65"
+        )
+
+
 def _pgm_bytes(pixels: np.ndarray) -> bytes:
     height, width = pixels.shape
     return b"P5\n%d %d\n255\n" % (width, height) + np.ascontiguousarray(pixels, dtype=np.uint8).tobytes()
@@ -407,29 +444,33 @@ def write_map(
     occupied_thresh: float = 0.65,
     free_thresh: float = 0.196,
     png: bool = True,
+    negate: bool = False,
 ) -> None:
     """Write ``<stem>.pgm`` + ``<stem>.yaml`` (+ ``<stem>.png``) atomically, like map_saver.
 
     trinary: occupied 0, free 254, unknown 205 in the PGM, which the YAML names; ``png`` adds a
     preview with the same pixels. scale: grey 255..0 for 0..100; the YAML names ``<stem>.png``
     (grey + alpha, unknown transparent: nav2 needs the alpha to see unknown in scale mode), so the
-    PNG is written whatever ``png`` says; the PGM (unknown 205) is written too. The images are
-    written before the YAML, so a YAML on disk never names a missing image.
+    PNG is written whatever ``png`` says; the PGM (unknown 205) is written too. raw: the cell
+    value as the grey level, unknown 255, in the PGM, which the YAML names (``png``: same pixels).
+    ``negate``: trinary and scale images are negated (255 - g) and the YAML says ``negate: 1``;
+    raw pixels are unchanged (nav2 ignores negate in raw mode). The images are written before
+    the YAML, so a YAML on disk never names a missing image.
 
     Raises ConfigError for a bad mode or thresholds, ValueError for an empty or non-2D grid.
     """
-    if mode not in ("trinary", "scale"):
-        raise ConfigError(f"map mode must be 'trinary' or 'scale', got {mode!r}")
+    if mode not in MODES:
+        raise ConfigError(f"map mode must be 'trinary', 'scale' or 'raw', got {mode!r}")
+    if not isinstance(negate, (bool, np.bool_, int, np.integer)) or negate not in (0, 1):
+        raise ConfigError(f"negate must be true or false, got {negate!r}")
+    negate = bool(negate)
     if not (0.0 <= free_thresh < occupied_thresh <= 1.0):
         raise ConfigError(
             f"map thresholds need 0 <= free_thresh < occupied_thresh <= 1, got free_thresh {free_thresh} "
             f"and occupied_thresh {occupied_thresh}"
         )
-    if mode == "trinary" and not (1.0 / 255.0 < free_thresh <= 1.0 - PIXEL_UNKNOWN / 255.0):
-        raise ConfigError(
-            f"free_thresh {free_thresh} would make map_server read unknown (grey 205) or free (grey 254) "
-            f"wrongly; use a value in (0.0039, 0.1960], e.g. 0.196"
-        )
+    if mode == "trinary":
+        _check_trinary_levels(occupied_thresh, free_thresh, negate)
     data = np.asarray(grid.data)
     if data.ndim != 2 or data.size == 0:
         raise ValueError(f"write_map needs a non-empty 2D grid, got shape {data.shape}")
@@ -445,24 +486,31 @@ def write_map(
     yaml_file, pgm_file, png_file = map_file_paths(yaml_path)
     image_rows = data[::-1]  # image row 0 is the top of the map
 
-    if mode == "trinary":
-        pixels = trinary_pixels(image_rows, occupied_thresh, free_thresh)
+    if mode == "scale":
+        grey, alpha = scale_pixels(image_rows)
+        if negate:
+            grey = 255 - grey
+        write_bytes_atomic(pgm_file, _pgm_bytes(grey))
+        _write_png(png_file, grey, alpha)
+        image_name = png_file.name
+    else:
+        if mode == "trinary":
+            pixels = trinary_pixels(image_rows, occupied_thresh, free_thresh)
+            if negate:
+                pixels = 255 - pixels
+        else:  # raw: nav2 reads round(shade * 255) whatever negate says
+            pixels = raw_pixels(image_rows)
         write_bytes_atomic(pgm_file, _pgm_bytes(pixels))
         if png:
             _write_png(png_file, pixels)
         image_name = pgm_file.name
-    else:
-        grey, alpha = scale_pixels(image_rows)
-        write_bytes_atomic(pgm_file, _pgm_bytes(grey))
-        _write_png(png_file, grey, alpha)
-        image_name = png_file.name
 
     text = (
         f"image: {_yaml_scalar(image_name)}\n"
         f"mode: {mode}\n"
         f"resolution: {_yaml_float(resolution)}\n"
         f"origin: [{', '.join(_yaml_float(v) for v in origin)}]\n"
-        f"negate: 0\n"
+        f"negate: {int(negate)}\n"
         f"occupied_thresh: {_yaml_float(occupied_thresh)}\n"
         f"free_thresh: {_yaml_float(free_thresh)}\n"
     )
