@@ -53,9 +53,14 @@ class LazyGroup(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
-        except LtmapError as exc:
+        except (LtmapError, OSError) as exc:
             if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
                 raise
+            if isinstance(exc, OSError):  # a file system failure no check foresaw (permission, disk full)
+                where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+                click.echo(f"ltmap: error: {where}{exc.strerror or exc}; check the path, its permissions and "
+                           "the free space", err=True)
+                ctx.exit(2)
             click.echo(f"ltmap: error: {exc}", err=True)
             ctx.exit(exc.exit_code)
 

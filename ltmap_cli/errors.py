@@ -33,6 +33,15 @@ class MapFileError(InputError):
     """A map file (map_server YAML + image, snapshot, state file) cannot be read."""
 
 
+class OutputError(LtmapError):
+    """An output folder or file cannot be written (not a folder, no permission, disk full)."""
+
+
+def output_error(err: OSError, what: str) -> OutputError:
+    """One line for an OSError met while writing ``what``."""
+    return OutputError(f"cannot write {what}: {err.strerror or err}; choose another output path (-o)")
+
+
 class TransformError(LtmapError):
     """A transform needed to place sensor frames is missing."""
 

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import heapq
 import json
+import os
 import queue
 import resource
 import threading
@@ -32,7 +33,7 @@ from .config import Config, dump_config
 from .core.layers import LayeredMap, StaticGrid
 from .core.projection import Projection, project
 from .core.sensors import depth_to_points, scan_to_points, transform_points
-from .errors import InputError, TransformError
+from .errors import InputError, OutputError, TransformError, output_error
 from .io.atomic import write_text_atomic
 from .io.decode import RawDepthFrame
 from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
@@ -158,10 +159,31 @@ class Replay:
 
     # ------------------------------------------------------------------------------------
     def run(self) -> dict:
+        req = self.req
+        t_wall0 = time.perf_counter()
+        self._created_out = not req.out_dir.exists()
+        try:  # first: a bad -o must not cost a whole replay
+            req.out_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise output_error(err, f"the output folder {req.out_dir}") from None
+        if not os.access(req.out_dir, os.W_OK):
+            raise OutputError(f"cannot write the output folder {req.out_dir}: permission denied; choose another -o")
+        try:
+            return self._setup_and_run(t_wall0)
+        except BaseException:
+            import shutil
+
+            if self.mcap is not None:
+                self.mcap.abort()
+            shutil.rmtree(self._staging(), ignore_errors=True)
+            if self._created_out and req.out_dir.is_dir() and not any(req.out_dir.iterdir()):
+                req.out_dir.rmdir()  # a failed run into a new folder leaves nothing behind
+            raise
+
+    def _setup_and_run(self, t_wall0: float) -> dict:
         from .transforms import TfBuffer
 
         cfg, req = self.cfg, self.req
-        t_wall0 = time.perf_counter()
         static, static_info, static_layer = (None, None, None)
         if req.static is not None:
             static, static_info, static_layer = load_static(req.static, cfg)
@@ -182,18 +204,12 @@ class Replay:
             tf.add_mount(spec)
         self.tf = tf
         out = req.out_dir
-        out.mkdir(parents=True, exist_ok=True)
         if cfg.replay.mcap_out:
             from .io.mcap_out import ReplayMcapWriter
 
             self.mcap = ReplayMcapWriter(out / "replay.mcap")
-        try:
-            return self._run(logs_paths=req.logs, out=out, static_info=static_info, resume_info=resume_info,
-                             t_wall0=t_wall0)  # fmt: skip
-        except BaseException:
-            if self.mcap is not None:
-                self.mcap.abort()
-            raise
+        return self._run(logs_paths=req.logs, out=out, static_info=static_info, resume_info=resume_info,
+                         t_wall0=t_wall0)  # fmt: skip
 
     def _run(self, logs_paths, out, static_info, resume_info, t_wall0) -> dict:
         from .io.logs import open_logs
@@ -279,6 +295,7 @@ class Replay:
             self._publish_maps(self._last_stamp, force=True)
             self.mcap.close()
         self._snapshot(None)
+        self._commit_snapshots()
         wall = time.perf_counter() - t_wall0
         t2 = time.perf_counter()
         stage["output"] += t2 - t1
@@ -444,10 +461,26 @@ class Replay:
     def _snapshot(self, t_s: float | None) -> None:
         from .snapshots import write_snapshot
 
-        paths = write_snapshot(
-            self.lmap, self.req.out_dir / "snapshots", t_s, {"fixed_frame": self.fixed_frame}
-        )
-        self.snapshots.append({"log_time_s": t_s, **paths})
+        # staged beside the output: a run that fails leaves the folder's snapshots/ as it was
+        paths = write_snapshot(self.lmap, self._staging(), t_s, {"fixed_frame": self.fixed_frame})
+        final = self.req.out_dir / "snapshots"
+        self.snapshots.append({"log_time_s": t_s, **{k: str(final / Path(v).name) for k, v in paths.items()}})
+
+    def _staging(self) -> Path:
+        return self.req.out_dir / f".snapshots.partial-{os.getpid()}"
+
+    def _commit_snapshots(self) -> None:
+        """This run's snapshots become OUT/snapshots (the previous run's, if any, go)."""
+        import shutil
+
+        staging, final = self._staging(), self.req.out_dir / "snapshots"
+        if not staging.is_dir():
+            return
+        old = final.with_name(f".snapshots.old-{os.getpid()}")
+        if final.exists():
+            os.replace(final, old)
+        os.replace(staging, final)
+        shutil.rmtree(old, ignore_errors=True)
 
     def _process(self, topic: str, item) -> None:
         """Place a sensor frame (tf lookups, main thread), have its rays computed (worker thread

@@ -281,6 +281,53 @@ def test_truncated_log_fails_unless_allowed(tmp_path):
     assert 0 < report["frames_used"]["/scan"] < 85
 
 
+def test_a_failed_run_leaves_the_folder_as_it_was(tmp_path):
+    """A run that fails after writing periodic snapshots (the log is cut at 60 %) leaves the
+    earlier run's snapshots/ byte for byte; a failed run into a new folder leaves no folder."""
+    good = write_log(tmp_path / "good.mcap", "mcap-ros2", room_messages(0.0, 17.0, True), chunk_size=20_000)
+    cut = write_log(tmp_path / "cut.mcap", "mcap-ros2", room_messages(0.0, 17.0, True), chunk_size=20_000)
+    truncate(cut, 0.6)
+    out = tmp_path / "o"
+    assert run(["replay", str(good), "-o", str(out), "-q", "--snapshot-every", "5"]).exit_code == 0
+
+    def snapshot_files():
+        return {p.name: p.read_bytes() for p in sorted((out / "snapshots").iterdir())}
+
+    before = snapshot_files()
+    assert "state_t000005.0s.npz" in before and "state_final.npz" in before
+    assert_one_line_error(run(["replay", str(cut), "-o", str(out), "-q", "--snapshot-every", "2"]), "cut.mcap")
+    assert snapshot_files() == before
+    assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []
+    # a successful rerun replaces the snapshots: only this run's remain
+    assert run(["replay", str(good), "-o", str(out), "-q", "--snapshot-every", "8"]).exit_code == 0
+    assert sorted(n for n in snapshot_files() if n.startswith("state")) == [
+        "state_final.npz", "state_t000008.0s.npz", "state_t000016.0s.npz"]
+    new = tmp_path / "new"
+    assert_one_line_error(run(["replay", str(cut), "-o", str(new), "-q"]), "cut.mcap")
+    assert not new.exists()
+
+
+def test_output_path_that_cannot_be_a_folder(tmp_path):
+    log = write_log(tmp_path / "good.mcap", "mcap-ros2", room_messages(0.0, 2.0, False))
+    (tmp_path / "afile").write_text("x")
+    for o in (tmp_path / "afile", tmp_path / "afile" / "sub"):
+        assert_one_line_error(run(["replay", str(log), "-o", str(o), "-q"]), "cannot write the output folder",
+                              str(o), "choose another output path")
+
+
+def test_a_sensor_topic_left_out_is_said_on_the_console(tmp_path):
+    msgs = room_messages(0.0, 2.0, False) + [
+        image("/cam/depth/image_raw", T0 + 10**8, np.ones((3, 4), np.uint16) * 1000)]
+    msgs.sort(key=lambda m: m.log_time_ns)
+    log = write_log(tmp_path / "l.mcap", "mcap-ros2", msgs)
+    r = run(["replay", str(log), "-o", str(tmp_path / "o"), "-q"])
+    assert r.exit_code == 0, r.output
+    warn = [ln for ln in r.output.splitlines() if ln.startswith("ltmap: warning:")]
+    assert len(warn) == 1 and "/cam/depth/image_raw not used: depth Image without CameraInfo" in warn[0]
+    r = run(["replay", str(log), "-o", str(tmp_path / "o2"), "-q", "--scan-topic", "/scan"])
+    assert r.exit_code == 0 and "ltmap: warning:" not in r.output  # left out on purpose
+
+
 def test_no_usable_topic_lists_what_is_there(tmp_path):
     log = write_log(tmp_path / "chat.mcap", "mcap-ros2",
                     [string("/chatter", T0, "hello"), tf(T0, [("odom", "base_link")])])  # fmt: skip

@@ -159,6 +159,9 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     )
     for reason, n in sorted(report["frames_skipped"].items(), key=lambda kv: -kv[1]):
         click.echo(f"  skipped {n} x: {reason}")
+    for topic, why in sorted((report.get("topics_not_used") or {}).items()):
+        if "not chosen" not in why:  # topics the user left out on purpose need no word
+            click.echo(f"ltmap: warning: {topic} not used: {why}", err=True)
     plan = (report.get("events") or {}).get("plan") or {}
     if plan.get("warning"):
         click.echo(f"ltmap: warning: {plan['warning']}", err=True)
