@@ -15,7 +15,7 @@ The scenario (YAML; schema in docs/scenarios.md; angles in degrees, times in s):
   doors are openings) or walls (polylines with a thickness), duration, seed,
   robot (radius, path: timed waypoints or standing still with a yaw sweep,
   odometry_drift), sensors (laser, depth, points), objects (box, cylinder,
-  sphere, table, chair with presence intervals), doors (closed intervals),
+  sphere, table, chair with presence intervals), doors (box, hinged or sliding, with closed intervals),
   people (cylinders walking along a timed path).
 
 \b
