@@ -1,0 +1,97 @@
+"""report.json timing fields and the progress line of `ltmap replay` (issue 3), on a shipped sample.
+
+The log's duration is taken from the MCAP summary (mcap's own reader), independently of ltmap's
+readers; the progress line's format is ProgressBar's (commands/replay.py): on a stream that is not
+a terminal it prints one line per 10 % of log time.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from ltmap_cli.cli import cli
+
+LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+PROGRESS = re.compile(
+    r"^\[[#.]+\] +(?P<done>\d+\.\d)/(?P<total>\d+\.\d) s log \| +\d+\.\d frames/s \| +\d+\.\dx real time$"
+)
+
+pytestmark = pytest.mark.skipif(not LOG.exists(), reason=f"{LOG} not shipped")
+
+
+def _runner() -> CliRunner:
+    try:  # click < 8.2 mixes stderr into output unless told not to
+        return CliRunner(mix_stderr=False)
+    except TypeError:  # click >= 8.2 keeps result.stderr apart
+        return CliRunner()
+
+
+def _summary():
+    from mcap.reader import make_reader
+
+    with LOG.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    stats = summary.statistics
+    duration = (stats.message_end_time - stats.message_start_time) / 1e9
+    scans = [cid for cid, ch in summary.channels.items() if ch.topic == "/scan"]
+    n_scans = sum(stats.channel_message_counts[cid] for cid in scans)
+    return duration, duration / max(n_scans - 1, 1)  # the log's duration and its scan period
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    out = {}
+    for name, extra in (("loud", []), ("quiet", ["-q"])):
+        folder = tmp_path_factory.mktemp(name) / "out"
+        result = _runner().invoke(cli, ["replay", str(LOG), "-o", str(folder), "--no-plots", *extra])
+        assert result.exit_code == 0, (result.output, result.stderr)
+        report = json.loads((folder / "report.json").read_text())
+        out[name] = (result, report)
+    return out
+
+
+def test_log_duration_is_the_mcap_duration(runs):
+    duration, period = _summary()
+    assert duration > 10.0 and 0.0 < period < 1.0  # the sample: 30 s of 10 Hz scans
+    for _, report in runs.values():
+        assert abs(report["log_duration_s"] - duration) <= period
+
+
+def test_wall_time_and_speed(runs):
+    for _, report in runs.values():
+        log_s, wall_s, speed = report["log_duration_s"], report["wall_time_s"], report["speed_vs_real_time"]
+        assert wall_s > 0.0
+        # the report divides unrounded values and rounds to 0.01; log_s and wall_s are rounded to
+        # 0.001, which moves the quotient by at most speed * (0.0005 / log_s + 0.0005 / wall_s)
+        slack = 0.005 + 0.005 + speed * (0.0005 / log_s + 0.0005 / wall_s) + 1e-9
+        assert abs(speed - round(log_s / wall_s, 2)) <= slack
+        assert speed > 0.0
+
+
+def test_peak_memory_plausible(runs):
+    for _, report in runs.values():
+        assert 50.0 <= report["peak_memory_mb"] <= 4000.0
+
+
+def test_progress_line_on_stderr_unless_quiet(runs):
+    result, report = runs["loud"]
+    lines = [line for line in result.stderr.splitlines() if PROGRESS.match(line)]
+    assert lines, result.stderr
+    for line in lines:
+        m = PROGRESS.match(line)
+        assert float(m["total"]) == pytest.approx(report["log_duration_s"], abs=0.05)
+        assert 0.0 <= float(m["done"]) <= float(m["total"])
+    # log time done never goes back
+    done = [float(PROGRESS.match(line)["done"]) for line in lines]
+    assert done == sorted(done)
+
+    quiet, _ = runs["quiet"]
+    assert "real time" not in quiet.stderr and "s log |" not in quiet.stderr
+    assert not any(PROGRESS.match(line) for line in quiet.stderr.splitlines())
+    # the summary line (stdout) is printed either way
+    assert "x real time" in quiet.stdout and "x real time" in result.stdout
