@@ -22,7 +22,8 @@ from .errors import ConfigError
 class ReplayConfig:
     fixed_frame: str = ""  # empty: `map` when the log has it, else `odom`
     snapshot_every: float = 60.0  # s of log time
-    mode: str = "trinary"  # map.pgm mode: trinary | scale
+    mode: str = "trinary"  # map.pgm mode (map_server): trinary | scale | raw
+    negate: bool = False  # map_server negate: images inverted (trinary, scale), flag only in raw
     scan_topics: list[str] = field(default_factory=list)
     cloud_topics: list[str] = field(default_factory=list)
     depth_topics: list[str] = field(default_factory=list)
@@ -52,8 +53,17 @@ class Config:
     def validate(self) -> None:
         problems = _non_finite(self)
         problems += self.map.validate()
-        if self.replay.mode not in ("trinary", "scale"):
-            problems.append(f"replay.mode must be trinary or scale, got {self.replay.mode!r}")
+        if self.replay.mode not in ("trinary", "scale", "raw"):
+            problems.append(f"replay.mode must be trinary, scale or raw, got {self.replay.mode!r}")
+        elif not problems:  # static.* is always trinary
+            from .errors import ConfigError as _Bad
+            from .io.mapfile import _check_trinary_levels
+
+            pc = self.map.projection
+            try:  # thresholds the trinary writer would refuse at the end of a long run: say so now
+                _check_trinary_levels(pc.occupied_thresh, pc.free_thresh, self.replay.negate)
+            except _Bad as err:
+                problems.append(f"map.projection thresholds: {err}")
         if self.replay.snapshot_every <= 0:
             problems.append("replay.snapshot_every must be > 0")
         if self.replay.plan_goal and len(self.replay.plan_goal) != 2:

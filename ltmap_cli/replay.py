@@ -264,6 +264,8 @@ class Replay:
                 while self._pending:
                     self._process(*heapq.heappop(self._pending)[2:])
                 self._drain(0)
+                if logs.stats.stopped_at is None:  # the whole log was read: the bar ends at 100 %
+                    self._report_progress(self.log_start + int(round(self.log_total_s * NS)), force=True)
             finally:
                 reader.close()
                 if self._pool is not None:
@@ -694,10 +696,10 @@ class Replay:
         written = {}
 
         def save(name: str, p: Projection, mode: str) -> None:
-            data = p.scale_data() if mode == "scale" else p.data
+            data = p.scale_data() if mode in ("scale", "raw") else p.data
             write_map(
                 out / f"{name}.yaml", GridMap(data, p.resolution, p.origin), mode=mode,
-                occupied_thresh=pc.occupied_thresh, free_thresh=pc.free_thresh,
+                occupied_thresh=pc.occupied_thresh, free_thresh=pc.free_thresh, negate=cfg.replay.negate,
             )  # fmt: skip
             written[name] = str(out / f"{name}.yaml")
 

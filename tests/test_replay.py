@@ -328,6 +328,21 @@ def test_a_sensor_topic_left_out_is_said_on_the_console(tmp_path):
     assert r.exit_code == 0 and "ltmap: warning:" not in r.output  # left out on purpose
 
 
+def test_raw_and_negated_maps_read_back_as_the_trinary_one(tmp_path):
+    log = write_log(tmp_path / "l.mcap", "mcap-ros2", room_messages(0.0, 17.0, True))  # 15 s to enter LT
+    cells = {}
+    for name, extra in (("trinary", []), ("raw", ["--mode", "raw"]), ("neg", ["--set", "replay.negate=true"]),
+                        ("rawneg", ["--mode", "raw", "--set", "replay.negate=true"])):
+        assert run(["replay", str(log), "-o", str(tmp_path / name), "-q", *extra]).exit_code == 0
+        cells[name] = occupied_cells(tmp_path / name / "map.yaml")
+    must, _ = expected_cells(True)
+    assert must <= cells["trinary"] and cells["raw"] == cells["neg"] == cells["rawneg"] == cells["trinary"]
+    assert "mode: raw" in (tmp_path / "raw" / "map.yaml").read_text()
+    r = run(["replay", str(log), "-o", str(tmp_path / "x"), "--set", "map.projection.occupied_thresh=1.0"])
+    assert_one_line_error(r, "occupied_thresh 1.0")
+    assert not (tmp_path / "x").exists()
+
+
 def test_no_usable_topic_lists_what_is_there(tmp_path):
     log = write_log(tmp_path / "chat.mcap", "mcap-ros2",
                     [string("/chatter", T0, "hello"), tf(T0, [("odom", "base_link")])])  # fmt: skip

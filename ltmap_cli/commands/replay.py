@@ -85,7 +85,8 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
 @click.option("--resolution", type=float, help="Voxel size in metres (default 0.05).")
 @click.option("--tick", type=float, help="Update tick of ST/LT in seconds of log time (default 0.2).")
 @click.option("--snapshot-every", type=float, help="Seconds of log time between snapshots (default 60).")
-@click.option("--mode", type=click.Choice(["trinary", "scale"]), help="map.pgm mode (default trinary).")
+@click.option("--mode", type=click.Choice(["trinary", "scale", "raw"]), help="map.pgm mode, as map_server's "
+              "(default trinary).")
 @click.option("--allow-truncated", is_flag=True, help="Replay what a cut-off or corrupt log holds, exit 0.")
 @click.option("--plan-goal", metavar="X,Y", help="Plan A* to this goal (fixed frame) every tick and time how "
               "fast the path reacts to each event (planner latency).")
