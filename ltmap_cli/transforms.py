@@ -137,6 +137,13 @@ class TfBuffer:
         self.window_ns = int(window_ns)
         self.edges: dict[str, _Edge] = {}  # child -> edge to its parent
         self.ignored: Counter[str] = Counter()  # "parent -> child from <source>" -> samples ignored
+        # Caches, pure speed-ups (a lookup computes the same numbers with or without them): the
+        # chain of parents per frame (dropped when an edge is made or removed) and, per edge, the
+        # matrix of its last lookup with its stamp (dropped when the edge gets a sample). A sensor
+        # frame and the robot pose at the same stamp share their timed edges; static edges are
+        # computed once.
+        self._chains: dict[str, tuple[str, ...]] = {}
+        self._edge_m: dict[str, tuple[int, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ filling
     def add(self, sample: TfSample | OdometrySample) -> None:
@@ -151,6 +158,8 @@ class TfBuffer:
         """Add a user mount ``parent:child=x,y,z,roll,pitch,yaw``; it overrides the log's edge."""
         s = parse_mount(spec)
         self.edges.pop(s.child, None)
+        self._chains.clear()
+        self._edge_m.pop(s.child, None)
         self._add(s.parent, s.child, 0, s.translation, s.rotation_xyzw, "mount")
         return s
 
@@ -158,6 +167,7 @@ class TfBuffer:
         if parent == child:
             return
         edge = self.edges.get(child)
+        self._edge_m.pop(child, None)
         if edge is not None and (edge.source != source or edge.parent != parent):
             have, new = _PRIORITY[edge.source], _PRIORITY[source]
             if new < have or (new == have and edge.source != source):
@@ -168,6 +178,7 @@ class TfBuffer:
             edge = None  # a stronger source takes the edge, or the same source re-parents the child
         if edge is None:
             edge = self.edges[child] = _Edge(parent, source)
+            self._chains.clear()
         value = np.array([*t, *q], dtype=np.float64)
         if edge.timeless:
             edge.times, edge.values = [0], [value]
@@ -195,7 +206,10 @@ class TfBuffer:
         e = self.edges.get(norm(child))
         return e is not None and e.parent == norm(parent)
 
-    def _chain(self, frame: str) -> list[str]:
+    def _chain(self, frame: str) -> tuple[str, ...]:
+        cached = self._chains.get(frame)
+        if cached is not None:
+            return cached
         chain = [frame]
         seen = {frame}
         while chain[-1] in self.edges:
@@ -204,13 +218,23 @@ class TfBuffer:
                 break
             chain.append(p)
             seen.add(p)
-        return chain
+        self._chains[frame] = out = tuple(chain)
+        return out
 
     def root(self, frame: str) -> str:
         return self._chain(norm(frame))[-1]
 
     def _edge_matrix(self, child: str, stamp: int) -> np.ndarray:
         e = self.edges[child]
+        cached = self._edge_m.get(child)
+        if cached is not None and (e.timeless or cached[0] == stamp):
+            return cached[1]
+        m = self._compute_edge_matrix(e, child, stamp)
+        m.flags.writeable = False  # shared by the lookups that hit the cache
+        self._edge_m[child] = (stamp, m)
+        return m
+
+    def _compute_edge_matrix(self, e: _Edge, child: str, stamp: int) -> np.ndarray:
         name = f"{e.parent} -> {child}"
         if e.timeless:
             v = e.values[0]

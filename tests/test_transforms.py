@@ -160,3 +160,53 @@ def test_available_until_tells_when_a_frame_can_be_placed():
     b.add(TfSample(2 * S, "map", "odom", (0, 0, 0), yaw_q(0)))
     assert b.available_until("odom", "laser") == 3 * S
     assert b.available_until("map", "laser") == 2 * S
+
+
+def test_lookup_caches_follow_new_samples_mounts_and_reparenting():
+    """The chain and per-edge matrix caches never serve a stale answer: every lookup below equals
+    the same lookup on a fresh buffer that holds the same samples and has no cache history."""
+    samples = []
+    b = TfBuffer(tolerance_ns=S // 20)
+
+    def add(sample):
+        samples.append(sample)
+        b.add(sample)
+
+    def fresh(stamp, target="map", source="laser"):
+        f = TfBuffer(tolerance_ns=S // 20)
+        for s in samples:
+            f.add(s)
+        for spec in mounts:
+            f.add_mount(spec)
+        return f.lookup(target, source, stamp)
+
+    mounts = []
+    add(TfSample(0, "map", "odom", (0.0, 0.0, 0.0), yaw_q(0.0)))
+    add(TfSample(0, "odom", "base_link", (0.0, 0.0, 0.0), yaw_q(0.0)))
+    add(TfSample(S, "odom", "base_link", (1.0, 0.0, 0.0), yaw_q(0.0)))
+    add(TfSample(0, "base_link", "laser", (0.5, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), static=True))
+    add(TfSample(2 * S, "map", "odom", (0.0, 0.0, 0.0), yaw_q(0.0)))
+    t = S + S // 50  # 20 ms after odom's last sample: within the tolerance, the last sample is used
+    first = b.lookup("map", "laser", t)
+    np.testing.assert_allclose(first[:3, 3], [1.5, 0.0, 0.0], atol=1e-12)
+    assert np.array_equal(b.lookup("map", "laser", t), first)  # served from the cache
+    # a newer odom sample: the same stamp now interpolates (1.0 -> 3.0 over 1 s, 2 % of the way)
+    add(TfSample(2 * S, "odom", "base_link", (3.0, 0.0, 0.0), yaw_q(0.0)))
+    second = b.lookup("map", "laser", t)
+    np.testing.assert_allclose(second[:3, 3], [1.54, 0.0, 0.0], atol=1e-12)
+    assert np.array_equal(second, fresh(t))
+    # a user mount replaces the static laser edge
+    mounts.append("base_link:laser=0,0.2,0,0,0,0")
+    b.add_mount(mounts[-1])
+    third = b.lookup("map", "laser", t)
+    np.testing.assert_allclose(third[:3, 3], [1.04, 0.2, 0.0], atol=1e-12)
+    assert np.array_equal(third, fresh(t))
+    # the same source re-parents the laser: the cached chain laser -> base_link is dropped
+    mounts.append("odom:laser=0,0,1,0,0,0")
+    b.add_mount(mounts[-1])
+    fourth = b.lookup("map", "laser", t)
+    np.testing.assert_allclose(fourth[:3, 3], [0.0, 0.0, 1.0], atol=1e-12)
+    assert np.array_equal(fourth, fresh(t))
+    # the returned matrices are the caller's own: changing one does not change the next lookup
+    fourth[0, 3] = 99.0
+    assert b.lookup("map", "laser", t)[0, 3] == 0.0
