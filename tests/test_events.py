@@ -12,7 +12,7 @@ import json
 import numpy as np
 import pytest
 from logfactory import scan, tf, write_log, yaw_quat
-from test_replay import MOUNT, PILLAR, ROBOT, T0, beam_angles, cast, run
+from test_replay import MOUNT, PILLAR, ROBOT, T0, assert_one_line_error, beam_angles, cast, run
 
 from ltmap_cli.analysis.events import TickClock, event_history, find_events
 
@@ -200,6 +200,16 @@ def test_bad_plan_goal_is_one_line(tmp_path):
     assert r.exit_code == 2 and "--plan-goal 3: expected X,Y" in r.output
     r = run(["replay", "--dump-config", "--plan-goal", "nan,1"])
     assert r.exit_code == 2 and "replay.plan_goal must hold finite numbers" in r.output
+
+
+@pytest.mark.parametrize("goal", ["", " "])
+def test_an_empty_plan_goal_is_refused_before_the_run(tmp_path, goal):
+    # an empty value used to be taken as "no goal": exit 0 and a replay without the planner
+    log = pillar_log(tmp_path / "pillar.mcap", present_s=1.0, absent_s=0.0)
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q", "--plan-goal", goal])
+    assert_one_line_error(r, f"--plan-goal {goal!r}: expected X,Y in metres")
+    assert not out.exists()
 
 
 def test_a_goal_off_the_map_is_said_not_silent(tmp_path):

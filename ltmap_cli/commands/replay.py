@@ -46,7 +46,8 @@ def _xy(text: str, flag: str) -> list[float]:
     try:
         x, y = (float(v) for v in text.split(","))
     except ValueError:
-        raise ConfigError(f"{flag} {text}: expected X,Y in metres, e.g. {flag} 3.5,-1.0") from None
+        shown = text if text.strip() else repr(text)  # an empty value is shown as ''
+        raise ConfigError(f"{flag} {shown}: expected X,Y in metres, e.g. {flag} 3.5,-1.0") from None
     return [x, y]
 
 
@@ -121,7 +122,7 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
         "replay.mcap_out": True if mcap_out else None,
         "replay.plots": False if no_plots else None,
         "replay.depth_outlier_filter": True if depth_outlier_filter else None,
-        "replay.plan_goal": _xy(plan_goal, "--plan-goal") if plan_goal else None,
+        "replay.plan_goal": _xy(plan_goal, "--plan-goal") if plan_goal is not None else None,
     }
     for key, value in flags.items():
         if value is not None:
