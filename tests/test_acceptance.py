@@ -304,6 +304,46 @@ def test_ball_below_the_laser_plane_occupied_with_depth_only(out):
     assert (with_laser == 100).sum() == 0
 
 
+# ----------------------------------------------------------------------------- 2, 3: depth only
+
+
+def _band_keys(gt: dict, part: dict) -> np.ndarray:
+    """``part_keys`` of one part, more than 0.1 m from a wall (as ``object_keys``)."""
+    import shapely
+
+    keys = part_keys(part)
+    far = shapely.distance(walls(gt), shapely.points((keys[:, :2] + 0.5) * R)) > 0.1
+    assert far.sum() > 10
+    return keys[far]
+
+
+@pytest.mark.parametrize(("name", "oid"), [("02_table", "table"), ("03_ball", "ball")])
+def test_seen_by_depth_only_enters_long_term_within_st_rise(out, name, oid):
+    """The table top (0.73 m) and the ball (below the laser plane) are seen by the 2.5 Hz depth
+    camera only, every other 0.2 s tick: with map.layers.max_gap_s the gap between two frames
+    counts as observed time, so they enter LT in st_rise_s like what the 10 Hz laser sees."""
+    gt = ground_truth(name)
+    folder = out(f"{name}/log.mcap", "--snapshot-every", "0.2")
+    check_start(folder, gt)
+    obj = gt_object(gt, oid)
+    (t_on, _) = obj["present"][0]
+    keys = _band_keys(gt, obj["parts"][0])  # the table's top, the ball's sphere
+    t_enter, _ = enter_leave(series(folder, keys), t_on, None)
+    # measured: in view from 0.0 s, in LT at 15.0 s (both)
+    assert LAY.st_rise_s - TICK <= t_enter - t_on <= ENTER_MAX
+
+
+def test_depth_only_without_gap_credit_takes_twice_st_rise(out):
+    """The control: with max_gap_s = 1 tick, ST rises once per depth frame (every other tick), so
+    the ball needs twice st_rise_s (measured: 30.0 s)."""
+    gt = ground_truth("03_ball")
+    folder = out("03_ball/log.mcap", "--snapshot-every", "0.2", "--set", f"map.layers.max_gap_s={TICK}")
+    obj = gt_object(gt, "ball")
+    (t_on, _) = obj["present"][0]
+    t_enter, _ = enter_leave(series(folder, _band_keys(gt, obj["parts"][0])), t_on, None)
+    assert 2 * LAY.st_rise_s - TICK <= t_enter - t_on <= 2 * LAY.st_rise_s + 2 * TICK
+
+
 # ----------------------------------------------------------------------------- 4: door
 
 
