@@ -20,6 +20,7 @@ import numpy as np
 from .core.grid import coord_to_pos
 from .core.layers import LayeredMap
 from .errors import MapFileError
+from .io.ply import write_voxels_ply
 from .io.state import read_state, write_state
 
 LT_CLIP = 1e-3
@@ -82,13 +83,10 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     out["ot"] = str(ot_path)
     occ = lt >= thr
     ply_path = folder / f"long_term_{name}.ply"
-    try:
-        from .io.ply import write_voxels_ply
-    except ImportError:  # pragma: no cover - the ply writer ships with the package
-        write_voxels_ply = None
-    if write_voxels_ply is not None and occ.any():
-        write_voxels_ply(ply_path, coord_to_pos(keys[occ], lmap.resolution), lt[occ], lmap.resolution)
-        out["ply"] = str(ply_path)
+    # no occupied voxel (the first snapshots of a run) is a valid PLY with 0 vertices: every
+    # snapshot time has its .ot, .ply and .npz
+    write_voxels_ply(ply_path, coord_to_pos(keys[occ], lmap.resolution), lt[occ], lmap.resolution)
+    out["ply"] = str(ply_path)
     state_path = folder / f"state_{name}.npz"
     write_state(state_path, lmap.state_arrays(), {"log_time_s": t_s, **meta})
     out["state"] = str(state_path)
