@@ -16,14 +16,18 @@ a byte-identical log.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import json
 import math
+import os
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from ..errors import InputError
 from .logwriter import LogWriter
 from .scenario import Scenario
 from .scene import World, active, door_leaf, door_motion, person_at, robot_pose
@@ -390,23 +394,73 @@ class Simulator:
         }
 
 
+def _check_outputs(out: Path, gt: Path, given: bool) -> None:
+    """Refuse, before simulating, a log or ground-truth path that cannot be written."""
+    gt_label = f"--ground-truth {gt}" if given else f"{gt} (the ground truth beside -o {out})"
+    todo = "choose another path" if given else "give --ground-truth another path"
+    for label, path, fix in ((f"-o {out}", out, "choose another path"), (gt_label, gt, todo)):
+        for parent in path.parents:
+            if parent.exists():
+                if not parent.is_dir():
+                    raise InputError(f"{label}: {parent} is a file, not a folder; {fix}")
+                if not os.access(parent, os.W_OK | os.X_OK):
+                    raise InputError(f"{label}: cannot write in {parent} (permission denied); {fix}")
+                break
+    g, o = gt.resolve(), out.resolve()
+    if g in o.parents:
+        raise InputError(f"{gt_label}: is the folder of the log -o {out}; give a file name such as "
+                         f"{gt / 'ground_truth.json'}")  # fmt: skip
+    if gt.is_dir():
+        fix = f"give a file name such as {gt / 'ground_truth.json'}" if given else todo
+        raise InputError(f"{gt_label}: is a folder; {fix}")
+    if g == o or o in g.parents:
+        raise InputError(f"{gt_label}: is the log -o {out} or inside it; give another file name")
+
+
+def _stage(path: Path, data: bytes) -> Path:
+    """Write ``data`` to a temporary file beside ``path`` (normal permissions); return it."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
+    tmp_path = Path(tmp)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        mask = os.umask(0)
+        os.umask(mask)
+        os.chmod(tmp_path, 0o666 & ~mask)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp_path.unlink()
+        raise
+    return tmp_path
+
+
 def simulate(
     sc: Scenario, out: str | Path, fmt: str = "mcap", ground_truth: str | Path | None = None, progress=None
 ) -> dict:
     """Write the log of ``sc`` to ``out`` (``fmt``: mcap, ros1, ros2) and its ground truth; return
     a summary (messages per topic, files)."""
-    from ..io.atomic import write_text_atomic
-
     out = Path(out)
-    sim = Simulator(sc)
-    with LogWriter(out, fmt) as w:
-        for topic, msgtype, t_ns, fields in sim.messages():
-            w.write(topic, msgtype, t_ns, fields, latching=topic == "/tf_static")
-            if progress is not None:
-                progress((t_ns - _stamp(sc, 0.0)) / NS, sc.duration)
-        counts = dict(w.counts)
     gt_path = Path(ground_truth) if ground_truth is not None else out.parent / "ground_truth.json"
-    write_text_atomic(gt_path, json.dumps(sim.ground_truth(), indent=1) + "\n")
+    _check_outputs(out, gt_path, ground_truth is not None)
+    sim = Simulator(sc)
+    gt_tmp = None
+    try:
+        with LogWriter(out, fmt) as w:
+            for topic, msgtype, t_ns, fields in sim.messages():
+                w.write(topic, msgtype, t_ns, fields, latching=topic == "/tf_static")
+                if progress is not None:
+                    progress((t_ns - _stamp(sc, 0.0)) / NS, sc.duration)
+            counts = dict(w.counts)
+            # the ground truth is staged before the log is renamed into place, so that a failure
+            # writing either leaves both targets as they were
+            gt_tmp = _stage(gt_path, (json.dumps(sim.ground_truth(), indent=1) + "\n").encode())
+        os.replace(gt_tmp, gt_path)
+    except BaseException:
+        if gt_tmp is not None:
+            with contextlib.suppress(OSError):
+                gt_tmp.unlink()
+        raise
     return {
         "log": str(out),
         "format": fmt,
