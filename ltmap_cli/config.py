@@ -33,13 +33,14 @@ class ReplayConfig:
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
     event_window_s: float = 5.0  # voxels crossing LT's threshold this close in time ...
-    event_link_m: float = 0.3  # ... and this close in space (chained) are one event
+    event_link_m: float = 0.15  # ... and this close in space (chained) are one event
     plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
     robot_radius: float = 0.2  # m, obstacle inflation for the planner
     plan_period: float = 0.0  # s of log time between plans (0: every tick)
     mcap_out: bool = False  # write OUT/replay.mcap for Foxglove / RViz
     plots: bool = True  # write OUT/plots/*.png
     map_period: float = 1.0  # s of log time between map messages in replay.mcap (when they changed)
+    scan_fused_window_s: float = 1.0  # /scan_fused: O's occupied voxels count when updated this recently
     depth_outlier_filter: bool = False  # drop flying pixels at depth jumps (open3d radius outlier removal)
     depth_outlier_radius: float = 0.02  # m: a jump pixel needs ...
     depth_outlier_min_neighbors: int = 3  # ... this many other points within the radius to stay
@@ -70,6 +71,8 @@ class Config:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
         if self.replay.map_period < 0:
             problems.append("replay.map_period must be >= 0")
+        if self.replay.scan_fused_window_s < 0:
+            problems.append("replay.scan_fused_window_s must be >= 0")
         if self.replay.robot_radius < 0:
             problems.append("replay.robot_radius must be >= 0")
         if self.replay.depth_outlier_radius <= 0:

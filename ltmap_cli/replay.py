@@ -154,6 +154,7 @@ class Replay:
         self._next_map_ns = None
         self._map_dirty = True
         self._p_latest: Projection | None = None
+        self._frame_log: deque = deque()  # (stamp ns, lmap.frame_id) of the frames of the last seconds
         self._jobs: deque = deque()
         self._pool = None
 
@@ -455,8 +456,14 @@ class Replay:
         yaw = float(np.arctan2(T[1, 0], T[0, 0]))
         sign = 1.0 if T[2, 2] >= 0 else -1.0  # an upside-down laser turns the other way
         angles = sign * item.angles
+        # current obstacles in O: updated by a frame stamped within the window before this scan
+        window_ns = int(self.cfg.replay.scan_fused_window_s * NS)
+        log = self._frame_log
+        while len(log) > 1 and log[1][0] < item.stamp_ns - window_ns:
+            log.popleft()
+        since = next((fid for stamp, fid in log if stamp >= item.stamp_ns - window_ns), self.lmap.frame_id + 1)
         ranges = virtual_scan(self.lmap, self._p_latest, (T[0, 3], T[1, 3], yaw), angles, item.range_min,
-                              item.range_max)  # fmt: skip
+                              item.range_max, o_since_frame=since)  # fmt: skip
         self.mcap.write_scan("/scan_fused", item.stamp_ns, item.frame_id, item.angle_min, item.angle_increment,
                              item.range_min, item.range_max, ranges)  # fmt: skip
 
@@ -591,6 +598,8 @@ class Replay:
         c.frame_ms.setdefault(topic, []).append((lookup_s + rays_s + integrate_s) * 1e3)
         c.stamps.setdefault(topic, []).append(item.stamp_ns)
         self._last_stamp = max(getattr(self, "_last_stamp", 0), item.stamp_ns)
+        if self.mcap is not None:
+            self._frame_log.append((item.stamp_ns, self.lmap.frame_id))
         if self.mcap is not None and isinstance(item, ScanFrame):
             t0 = time.perf_counter()
             self._publish_fused_scan(item, T)
@@ -607,11 +616,17 @@ class Replay:
         """events.csv and the summaries of report.json: change events with their latencies, and
         wall-clock processing time per frame (by topic) and per tick against the frame period."""
         from .analysis.events import event_history, events_csv, find_events, percentiles
+        from .core.projection import band_k_range, static_fills
 
         lmap, clock = self.lmap, self._clock()
+        pc = self.cfg.map.projection
+        k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, lmap.resolution)
+        lt_keys = lmap.occupied_keys("LT")
+        final_cols = lt_keys[(lt_keys[:, 2] >= k_lo) & (lt_keys[:, 2] <= k_hi), :2]
         events, members = find_events(
             lmap.events.transitions, lmap.D.block_coords[: lmap.D.n_blocks], lmap.resolution, clock,
             window_s=self.cfg.replay.event_window_s, link_m=self.cfg.replay.event_link_m,
+            final_cols=final_cols, static_cols=lambda cols: static_fills(lmap, cols),
         )  # fmt: skip
         if self.tracker is not None:
             self.tracker.attribute(events, lmap.resolution)
@@ -620,7 +635,7 @@ class Replay:
         hist_i, hist_v = lmap.events.history
         self.histories = {
             e["id"]: event_history(hist_i, hist_v, members[e["id"]], clock,
-                                   t_from_s=(e["t_start_s"] or e["t_in_map_s"]) - 5.0)  # fmt: skip
+                                   t_from_s=(e["t_start_s"] if e["t_start_s"] is not None else e["t_lt_s"]) - 5.0)  # fmt: skip
             for e in events
         }
         lat = {"add": [e["latency_s"] for e in events if e["kind"] == "appear" and e["latency_s"] is not None],

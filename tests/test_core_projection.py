@@ -59,3 +59,21 @@ def test_virtual_scan_sees_projection_and_current_obstacles_in_o():
     ranges = virtual_scan(m, p, (0.025, 0.025, 0.0), angles, 0.05, 5.0)
     assert ranges[0] == pytest.approx(1.0 - 0.025, abs=1e-6)
     assert virtual_scan(m, p, (0.025, 0.025, 0.0), angles, 0.05, 5.0, include_o=False)[0] == pytest.approx(1.975)
+
+
+def test_virtual_scan_forgets_o_obstacles_not_updated_since_the_window():
+    """An obstacle a person left in O where no sensor looks again is not a current obstacle: with
+    ``o_since_frame`` after the frame that marked it, the scan sees through it to the wall."""
+    m = LayeredMap(MapConfig())
+    m.seed_long_term(np.array([[40, 0, 10]]), 1.0)  # the wall at 2 m, in LT
+    p = project(m)
+    m.integrate([0.025, 0.025, 1.2], [[1.025, 0.025, 0.775]])  # frame 1 marks a voxel 1 m ahead
+    marked = m.frame_id
+    m.integrate([0.025, 0.025, 1.2], [[0.025, 3.025, 0.775]])  # frame 2 looks elsewhere (+y)
+    angles = np.array([0.0])
+    pose = (0.025, 0.025, 0.0)
+    assert virtual_scan(m, p, pose, angles, 0.05, 5.0, o_since_frame=marked)[0] == pytest.approx(0.975, abs=1e-6)
+    assert virtual_scan(m, p, pose, angles, 0.05, 5.0, o_since_frame=marked + 1)[0] == pytest.approx(1.975, abs=1e-6)
+    # seen again (frame 3): current again
+    m.integrate([0.025, 0.025, 1.2], [[1.025, 0.025, 0.775]])
+    assert virtual_scan(m, p, pose, angles, 0.05, 5.0, o_since_frame=marked + 1)[0] == pytest.approx(0.975, abs=1e-6)

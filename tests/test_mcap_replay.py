@@ -27,7 +27,7 @@ def table_points() -> np.ndarray:
     return (world - np.array(CAM)).astype(np.float32)  # in the camera frame (axes as odom)
 
 
-def table_log(path, duration_s=17.0, rate_hz=5.0):
+def table_log(path, duration_s=17.0, rate_hz=5.0, cloud_until_s=None):
     msgs = [tf(T0, [("base_link", "laser", MOUNT, (0, 0, 0, 1))], static=True),
             tf(T0, [("odom", "camera", CAM, (0, 0, 0, 1))], static=True)]  # fmt: skip
     x, y, yaw = ROBOT
@@ -41,7 +41,8 @@ def table_log(path, duration_s=17.0, rate_hz=5.0):
         if 0 <= i < n:
             msgs.append(scan("/scan", ns, ranges, angle_min=amin, angle_increment=inc, range_min=0.05,
                              range_max=10.0))  # fmt: skip
-            msgs.append(cloud("/camera/points", ns + 1000, pts, frame_id="camera"))
+            if cloud_until_s is None or i / rate_hz < cloud_until_s:
+                msgs.append(cloud("/camera/points", ns + 1000, pts, frame_id="camera"))
     return write_log(path, "mcap-ros2", msgs)
 
 
@@ -96,11 +97,8 @@ def test_final_grid_equals_map_pgm(replayed):
     assert (data == 100).sum() > 100
 
 
-def test_fused_scan_sees_the_table_top_the_laser_misses(replayed):
-    _, msgs = replayed
-    _, _, fused = msgs["/scan_fused"][-1]
-    fused_r = np.asarray(fused.ranges)
-    real_r, _ = cast(False)
+def table_beams():
+    """(beam index, distance into the table's xy box) of the beams that cross the table."""
     lx, ly, yaw = laser_pose()
     _, _, ang = beam_angles()
     hits_table = []
@@ -114,6 +112,16 @@ def test_fused_scan_sees_the_table_top_the_laser_misses(replayed):
         t_in, t_out = max(tx[0], ty[0]), min(tx[1], ty[1])
         if 0 < t_in < t_out and t_out - t_in > 0.1:
             hits_table.append((i, t_in))
+    return hits_table
+
+
+def test_fused_scan_sees_the_table_top_the_laser_misses(replayed):
+    _, msgs = replayed
+    _, _, fused = msgs["/scan_fused"][-1]
+    fused_r = np.asarray(fused.ranges)
+    real_r, _ = cast(False)
+    _, _, ang = beam_angles()
+    hits_table = table_beams()
     assert len(hits_table) >= 5
     for i, t_in in hits_table:
         assert real_r[i] > t_in + 0.5  # the real laser passes under the table to the wall
@@ -122,3 +130,29 @@ def test_fused_scan_sees_the_table_top_the_laser_misses(replayed):
     others = [i for i in range(len(ang)) if i not in {h[0] for h in hits_table}]
     close = np.abs(fused_r[others] - real_r[others]) < 0.08
     assert close.mean() > 0.9
+
+
+def test_fused_scan_drops_o_obstacles_no_sensor_updated_within_the_window(tmp_path):
+    """The camera sees the table top for the first 2 s only (then looks away: no more clouds).
+    Not yet in LT (st_rise_s 15 s), the top is a current obstacle in O while the window (1 s)
+    holds a frame that updated it: the fused scan stops at it up to ~3 s, and sees through it
+    to the wall from then on (before, a voxel stayed in the scan for as long as O said > 0)."""
+    log = table_log(tmp_path / "t.mcap", duration_s=8.0, cloud_until_s=2.0)
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "-o", str(out), "-q", "--mcap-out"])
+    assert r.exit_code == 0, r.output
+    fused = read_back(out / "replay.mcap")["/scan_fused"]
+    real_r, _ = cast(False)
+    beams = table_beams()
+    t0 = fused[0][1]
+    seen_at = []
+    for _, log_time, msg in fused:
+        rr = np.asarray(msg.ranges)
+        on_table = [abs(rr[i] - t_in) < 0.08 for i, t_in in beams]
+        through = [abs(rr[i] - real_r[i]) < 0.08 for i, _ in beams]
+        t = (log_time - t0) / 1e9
+        if all(on_table):
+            seen_at.append(t)
+        else:
+            assert all(through), f"at {t:.1f} s the fused scan neither stops at the table nor sees the wall"
+    assert seen_at and min(seen_at) < 0.5 and 1.8 <= max(seen_at) <= 3.0 + 1e-6

@@ -1,23 +1,31 @@
 """Change events and their latencies (SPEC 6), from what the map core recorded during a replay.
 
-An event is a connected group of voxels (linked within ``link_m``, default 0.3 m, so that a
-wall sampled by a sparse 2D laser stays one group) inside the robot's z band that
-enter LT (``appear``: LT crosses the occupied threshold upwards, so P shows them occupied) or
-leave it (``disappear``: LT falls below it, so P shows them free), at ticks no more than
-``window_s`` apart (chained: voxels of a large object that enter over a longer time stay one event).
+An event is a connected group of voxels (linked within ``link_m``, default 0.15 m: a wall
+sampled by a 0.75-degree laser stays one group out to 11 m, and two objects 0.2 m apart stay two
+events) inside the robot's z band that enter LT (``appear``: LT crosses the occupied threshold
+upwards) or leave it (``disappear``: LT falls below it), at ticks no more than ``window_s`` apart
+(chained: voxels of a large object that enter over a longer time stay one event).
 
 Per voxel, the core recorded the tick of the crossing and the tick its streak began: the first
-tick it was an obstacle in O (appear) or the first tick it was seen free (disappear). An event's
-latency (the issue's definition) runs from the start of the first tick any of its voxels began
-its streak (``t_start_s``) to the end of the first tick P shows any of them changed
-(``t_in_map_s``), so an obstacle seen continuously from its first tick enters after exactly
-st_rise_s. Per voxel, (crossing tick - streak start + 1) x tick; their median, min and max are
-kept too (``latency_median_s`` etc.: a large object seen bit by bit spreads them). Times are
-seconds of log time since the log's first message.
+tick it was an obstacle in O (appear) or the first tick it was seen free (disappear). A voxel
+crossing LT's threshold does not always change P: a table leg voxel leaving LT under a table top
+that stays, or a voxel entering LT in a column something else already fills, leaves its cell as
+it was. So the column counts of LT's occupied band voxels are rebuilt tick by tick from the
+transitions and the final map, and a transition *changes P* when its column goes from no occupied
+voxel to some (appear) or from some to none (disappear), and the static map does not fill it.
+An event's latency (the issue's definition) runs from the start of the first tick any of its
+voxels began its streak (``t_start_s``) to the end of the first tick at which one of its
+transitions changed P (``t_in_map_s``), so an obstacle seen continuously from its first tick
+enters after exactly st_rise_s. ``p_cells`` counts the event's cells whose P changed; an event
+with none (LT changed, P did not) has no ``t_in_map_s`` and no latency. ``t_lt_s`` is the end of
+the first tick any of its voxels crossed LT's threshold. Per voxel, (crossing tick - streak start
++ 1) x tick; their median, min and max are kept too (``latency_median_s`` etc.: a large object
+seen bit by bit spreads them). Times are seconds of log time since the log's first message.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -28,7 +36,7 @@ KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}
 
 CSV_COLUMNS = [
     "id", "kind", "t_start_s", "t_in_map_s", "latency_s", "latency_median_s", "latency_min_s", "latency_max_s",
-    "planner_latency_s", "voxels", "cells", "centroid_x", "centroid_y", "centroid_z",
+    "planner_latency_s", "t_lt_s", "voxels", "cells", "p_cells", "centroid_x", "centroid_y", "centroid_z",
     "min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
 ]  # fmt: skip
 
@@ -117,55 +125,120 @@ def _group_kernel(keys, ticks, sorted_packed, order, window, link):
     return out
 
 
+def p_changes(
+    kind: np.ndarray,
+    cols: np.ndarray,
+    ticks: np.ndarray,
+    final_cols: np.ndarray | None,
+    static_cols: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
+    """Which transitions changed P: bool per row. ``cols`` (N, 2) the (i, j) columns of the
+    transitions, ``kind`` APPEAR / DISAPPEAR, ``ticks`` their ticks; ``final_cols`` (M, 2) the
+    columns of LT's occupied band voxels at the end of the run, one row per voxel (None: every
+    column ends empty of other voxels than these transitions say); ``static_cols`` tells which
+    columns the static map fills (those never change). A column's count of occupied voxels before
+    the first tick is the final count minus the appears plus the disappears recorded in it; the
+    transitions of one tick apply together, at its end."""
+    n = len(kind)
+    out = np.zeros(n, dtype=bool)
+    if n == 0:
+        return out
+    cols = np.asarray(cols, dtype=np.int64).reshape(-1, 2)
+    packed = ((cols[:, 0] + _BOFF) << 32) | (cols[:, 1] + _BOFF)
+    uniq, col_idx = np.unique(packed, return_inverse=True)
+    delta = np.where(kind == APPEAR, 1, -1).astype(np.int64)
+    final = np.zeros(len(uniq), dtype=np.int64)
+    if final_cols is not None and len(final_cols):
+        fc = np.asarray(final_cols, dtype=np.int64).reshape(-1, 2)
+        fp = ((fc[:, 0] + _BOFF) << 32) | (fc[:, 1] + _BOFF)
+        pos = np.searchsorted(uniq, fp)
+        hit = (pos < len(uniq)) & (uniq[np.minimum(pos, len(uniq) - 1)] == fp)
+        np.add.at(final, pos[hit], 1)
+    initial = final - np.bincount(col_idx, weights=delta, minlength=len(uniq)).astype(np.int64)
+    initial = np.maximum(initial, 0)  # a record lost would make it negative: count it as empty
+    order = np.lexsort((ticks, col_idx))
+    c_s, t_s, d_s = col_idx[order], np.asarray(ticks, dtype=np.int64)[order], delta[order]
+    # groups of one (column, tick): their summed delta, applied at once
+    start = np.ones(n, dtype=bool)
+    start[1:] = (c_s[1:] != c_s[:-1]) | (t_s[1:] != t_s[:-1])
+    gid = np.cumsum(start) - 1
+    g_delta = np.bincount(gid, weights=d_s).astype(np.int64)
+    g_col = c_s[start]
+    g_first_of_col = np.ones(len(g_col), dtype=bool)
+    g_first_of_col[1:] = g_col[1:] != g_col[:-1]
+    run = np.cumsum(g_delta)
+    col_base = np.maximum.accumulate(np.where(g_first_of_col, np.arange(len(g_col)), 0))
+    before_run = np.concatenate([[0], run[:-1]])
+    g_after = initial[g_col] + run - before_run[col_base]
+    g_before = g_after - g_delta
+    after, before = g_after[gid], g_before[gid]
+    k_s = np.asarray(kind)[order]
+    changed = np.where(k_s == APPEAR, (before <= 0) & (after > 0), (before > 0) & (after <= 0))
+    if static_cols is not None:
+        changed &= ~np.asarray(static_cols(cols[order]), dtype=bool)
+    out[order] = changed
+    return out
+
+
 def find_events(
     transitions: np.ndarray,
     block_coords: np.ndarray,
     resolution: float,
     clock: TickClock,
     window_s: float = 5.0,
-    link_m: float = 0.3,
+    link_m: float = 0.15,
     min_voxels: int = 1,
+    final_cols: np.ndarray | None = None,
+    static_cols: Callable[[np.ndarray], np.ndarray] | None = None,
 ) -> tuple[list[dict], dict[int, np.ndarray]]:
     """(events sorted by time, {event id: D voxel ids (block * 512 + offset)}).
 
     ``transitions`` rows: (kind, D block, offset, tick, streak start tick) from
-    ``LayeredMap.events.transitions``; ``block_coords`` the D grid's block coordinates."""
+    ``LayeredMap.events.transitions``; ``block_coords`` the D grid's block coordinates;
+    ``final_cols`` and ``static_cols``: see ``p_changes`` (what P looked like, for ``t_in_map_s``)."""
     tr = np.asarray(transitions, dtype=np.int64).reshape(-1, 5)
     events: list[dict] = []
     members: dict[int, np.ndarray] = {}
     window = max(1, int(round(window_s / clock.tick_s)))
+    all_keys = _voxel_keys(tr[:, 1], tr[:, 2], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
+    changed_all = p_changes(tr[:, 0], all_keys[:, :2], tr[:, 3], final_cols, static_cols)
     groups = []
     for kind in (APPEAR, DISAPPEAR):
-        sel = tr[tr[:, 0] == kind]
-        if not len(sel):
+        idx = np.flatnonzero(tr[:, 0] == kind)
+        if not len(idx):
             continue
-        keys = _voxel_keys(sel[:, 1], sel[:, 2], block_coords)
-        labels = _group(keys, sel[:, 3], window, max(1, int(round(link_m / resolution))))
+        keys = all_keys[idx]
+        labels = _group(keys, tr[idx, 3], window, max(1, int(round(link_m / resolution))))
         for lab in np.unique(labels):
             m = labels == lab
             if m.sum() >= min_voxels:
-                groups.append((kind, sel[m], keys[m]))
+                groups.append((kind, tr[idx[m]], keys[m], changed_all[idx[m]]))
     groups.sort(key=lambda g: (int(g[1][:, 3].min()), g[0]))
-    for eid, (kind, rows, keys) in enumerate(groups, start=1):
+    for eid, (kind, rows, keys, changed) in enumerate(groups, start=1):
         ticks, since = rows[:, 3], rows[:, 4]
         known = since >= 0
-        # from the start of the first tick of the streak to the end of the tick P shows the change
+        # per voxel: from the start of the first tick of its streak to the end of its crossing tick
         lat = (ticks[known] - since[known] + 1) * clock.tick_s
         lo = keys.min(axis=0) * resolution
         hi = (keys.max(axis=0) + 1) * resolution
         centroid = (keys.mean(axis=0) + 0.5) * resolution
+        t_start = float(clock.start(since[known].min())) if known.any() else None
+        t_in_map = float(clock.end(ticks[changed].min())) if changed.any() else None
         ev = {
             "id": eid,
             "kind": KIND_NAME[kind],
-            "t_start_s": float(clock.start(since[known].min())) if known.any() else None,
-            "t_in_map_s": float(clock.end(ticks.min())),
-            "latency_s": float(clock.end(ticks.min()) - clock.start(since[known].min())) if known.any() else None,
+            "t_start_s": t_start,
+            "t_in_map_s": t_in_map,
+            "latency_s": t_in_map - t_start if t_start is not None and t_in_map is not None else None,
             "latency_median_s": float(np.median(lat)) if len(lat) else None,
             "latency_min_s": float(lat.min()) if len(lat) else None,
             "latency_max_s": float(lat.max()) if len(lat) else None,
             "planner_latency_s": None,
+            "t_lt_s": float(clock.end(ticks.min())),
+            "t_in_map_last_s": float(clock.end(ticks[changed].max())) if changed.any() else None,
             "voxels": int(len(keys)),
             "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
+            "p_cells": int(len({(int(a), int(b)) for a, b in keys[changed, :2]})),
             "centroid": [float(v) for v in centroid],
             "extent_min": [float(v) for v in lo],
             "extent_max": [float(v) for v in hi],

@@ -4,12 +4,16 @@ During a replay with ``--plan-goal``, ``PlanTracker.update`` plans on P from the
 position to the goal at every planning tick and records the path, and which cells of the previous
 path are blocked now. After the run, ``attribute`` gives each event its planner latency:
 
-- appear: the first planning tick at or after the event's first sight at which a cell of the
-  previous path is blocked within the event's footprint (its xy extent grown by the robot
-  radius): the path had to change because of it;
-- disappear: the first planning tick at or after the first tick it was seen free at which the new
-  path runs through the event's own cells (its xy extent), which the previous path, planned
-  while they were occupied, could not.
+- appear: a planning tick at which a cell of the previous path is blocked within the event's
+  footprint (its xy extent grown by the robot radius): the path had to change because of it;
+- disappear: a planning tick at which the new path runs through the event's own cells (its xy
+  extent), which the previous path, planned while they were occupied, did not.
+
+The change is credited to the event only while the event is changing P: at a planning tick from
+the first to the last tick at which its voxels changed P (``t_in_map_s`` .. ``t_in_map_last_s``),
+or the first planning tick after that. A path that changes later (the robot drove elsewhere, and
+a shorter route now happens to cross the cells) was not changed by the event; an event that
+never changed P changed no path.
 
 Latency = that tick's time - the event's ``t_start_s``. Paths are kept in world coordinates (the
 grid grows during a replay).
@@ -105,15 +109,19 @@ class PlanTracker:
 
     def attribute(self, events: list[dict], resolution: float) -> None:
         """Set ``planner_latency_s`` (and ``t_plan_change_s``) of each event, or leave None."""
+        eps = 1e-9
         for e in events:
-            start = e["t_start_s"] if e["t_start_s"] is not None else e["t_in_map_s"]
+            t_p0, t_p1 = e.get("t_in_map_s"), e.get("t_in_map_last_s", e.get("t_in_map_s"))
+            if t_p0 is None:
+                continue  # P never showed it: no path could change because of it
+            start = e["t_start_s"] if e["t_start_s"] is not None else t_p0
             if e["kind"] == "appear":  # cells the inflated event blocks
                 lo, hi = self._footprint(e, self.robot_radius + resolution)
             else:  # the event's own cells (path cell centres lie within half a cell of them)
                 lo, hi = self._footprint(e, 0.0)
             prev_path = None
             for rec in self.records:
-                if rec.t_s < start:
+                if rec.t_s < t_p0 - eps:
                     prev_path = rec.path_xy
                     continue
                 if e["kind"] == "appear":
@@ -124,4 +132,6 @@ class PlanTracker:
                     e["planner_latency_s"] = float(rec.t_s - start)
                     e["t_plan_change_s"] = float(rec.t_s)
                     break
+                if rec.t_s > t_p1 + eps:
+                    break  # the first planning tick after the event's last P change: too late
                 prev_path = rec.path_xy

@@ -162,8 +162,25 @@ def project(
     return Projection(data, value, seen_free, i0, j0, r)
 
 
+def static_fills(lmap, cols: np.ndarray) -> np.ndarray:
+    """Bool per (i, j) column of ``cols`` (N, 2): the static layer makes it occupied in P (a static
+    occupied cell whose wall reaches the z band), so nothing in LT changes that cell."""
+    cols = np.asarray(cols, dtype=np.int64).reshape(-1, 2)
+    out = np.zeros(len(cols), dtype=bool)
+    s = lmap.static
+    if s is None or not len(cols):
+        return out
+    k_lo, _ = band_k_range(lmap.cfg.projection.z_min, lmap.cfg.projection.z_max, lmap.resolution)
+    r, c = cols[:, 1] - s.j0, cols[:, 0] - s.i0
+    h, w = s.occ.shape
+    inside = (r >= 0) & (r < h) & (c >= 0) & (c < w)
+    ri, ci = r[inside], c[inside]
+    out[inside] = (s.occ[ri, ci] >= OCCUPIED) & (s.top_k[ri, ci] >= k_lo)
+    return out
+
+
 @njit(cache=True)
-def _o_column_occupied(table_keys, table_vals, logodds, i, j, k_lo, k_hi):
+def _o_column_occupied(table_keys, table_vals, logodds, stamp, since, i, j, k_lo, k_hi):
     bx = i >> BLOCK_BITS
     by = j >> BLOCK_BITS
     for bz in range(k_lo >> BLOCK_BITS, (k_hi >> BLOCK_BITS) + 1):
@@ -174,7 +191,8 @@ def _o_column_occupied(table_keys, table_vals, logodds, i, j, k_lo, k_hi):
             k = bz * BLOCK + lk
             if k < k_lo or k > k_hi:
                 continue
-            if logodds[b, voxel_offset(i, j, k)] > 0.0:
+            off = voxel_offset(i, j, k)
+            if logodds[b, off] > 0.0 and stamp[b, off] >= since:
                 return True
     return False
 
@@ -182,7 +200,7 @@ def _o_column_occupied(table_keys, table_vals, logodds, i, j, k_lo, k_hi):
 @njit(cache=True)
 def _virtual_scan_kernel(
     x, y, yaw, angles, range_min, range_max, res,
-    p_data, p_i0, p_j0, table_keys, table_vals, logodds, k_lo, k_hi, use_o,
+    p_data, p_i0, p_j0, table_keys, table_vals, logodds, stamp, since, k_lo, k_hi, use_o,
 ):  # fmt: skip
     n = angles.shape[0]
     out = np.full(n, np.inf, dtype=np.float32)
@@ -206,7 +224,7 @@ def _virtual_scan_kernel(
                 r = cj - p_j0
                 c = ci - p_i0
                 hit = False
-                if 0 <= r < H and 0 <= c < W and p_data[r, c] >= 100 or use_o and _o_column_occupied(table_keys, table_vals, logodds, ci, cj, k_lo, k_hi):
+                if 0 <= r < H and 0 <= c < W and p_data[r, c] >= 100 or use_o and _o_column_occupied(table_keys, table_vals, logodds, stamp, since, ci, cj, k_lo, k_hi):
                     hit = True
                 if hit:
                     out[a] = t_enter
@@ -230,10 +248,14 @@ def virtual_scan(
     range_min: float,
     range_max: float,
     include_o: bool = True,
+    o_since_frame: int = 0,
 ) -> np.ndarray:
     """Ranges (float32, +inf for no return) of a scan from (x, y, yaw) in the fixed frame over
     max(P, current obstacles in O within the z band). Range = distance to the cell boundary
-    where the beam enters the first occupied cell at or beyond ``range_min``."""
+    where the beam enters the first occupied cell at or beyond ``range_min``. *Current* obstacles
+    in O: log-odds > 0 and updated by frame ``o_since_frame`` or later (``LayeredMap.frame_id``
+    counts integrated frames; 0: whenever), so a voxel a person left behind where no sensor looks
+    again does not stay in the scan."""
     x, y, yaw = (float(v) for v in pose_xy_yaw)
     pc = lmap.cfg.projection
     k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, lmap.resolution)
@@ -241,5 +263,5 @@ def virtual_scan(
     return _virtual_scan_kernel(
         x, y, yaw, np.ascontiguousarray(angles, dtype=np.float64), float(range_min), float(range_max),
         lmap.resolution, projection.data, projection.i0, projection.j0,
-        o.table_keys, o.table_vals, o.data["logodds"], k_lo, k_hi, include_o,
+        o.table_keys, o.table_vals, o.data["logodds"], o.data["stamp"], int(o_since_frame), k_lo, k_hi, include_o,
     )  # fmt: skip
