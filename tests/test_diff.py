@@ -426,3 +426,60 @@ def test_maps_far_apart_are_refused_with_the_memory_they_would_need(tmp_path):
     r = run(a, b)
     assert r.exit_code == 2 and "Traceback" not in r.output, r.output
     assert "GB" in r.output and "same frame" in r.output and len(r.output.strip().splitlines()) == 1
+
+
+def test_plan_and_2d_diff_read_state_snapshots_as_their_ot(tmp_path):
+    """`plan` and 2D `diff` accept an exact-state .npz like the .ot written beside it: a wall of
+    LT voxels across the way, 0.5 m wide with a gap at its end, makes the same detour on both."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.snapshots import write_snapshot
+
+    m = LayeredMap(MapConfig())
+    wall = [[20, j, 10] for j in range(0, 30)]  # x = 1.0 m, y 0 .. 1.5 m
+    corners = [[0, 0, 10], [40, 0, 10], [0, 40, 10], [40, 40, 10]]  # the map's extent
+    m.seed_long_term(np.array(wall + corners), 1.0)
+    write_snapshot(m, tmp_path / "snapshots", None, {})
+    npz, ot = tmp_path / "snapshots/state_final.npz", tmp_path / "snapshots/long_term_final.ot"
+    plans = []
+    for p in (npz, ot):
+        r = CliRunner().invoke(cli, ["plan", str(p), "--start", "0.5,0.5", "--goal", "1.5,0.5",
+                                     "--robot-radius", "0.1", "--allow-unknown", "--json"])  # fmt: skip
+        assert r.exit_code == 0, r.output
+        plans.append(json.loads(r.output))
+    assert plans[0]["path"] == plans[1]["path"]
+    assert plans[0]["length_m"] > 2 * 1.0  # around the wall's end at y = 1.5 m, not 1 m straight
+    assert max(y for _, y in plans[0]["path"]) > 1.5
+    r = run(npz, ot, "--json")
+    assert r.exit_code == 0, r.output
+    assert json.loads(r.output)["cells"]["occupied_a"] == len(wall) + 4
+
+
+@pytest.mark.parametrize("cmd", ["diff", "plan"])
+def test_bad_map_arguments_name_every_accepted_kind(tmp_path, cmd):
+    b = write_trinary(tmp_path / "b.yaml", base_map())
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "r.json").write_text("{}")
+    for bad, what in ((tmp_path / "empty", "no map.yaml"), (tmp_path / "nope.npz", "no such file"),
+                      (tmp_path / "r.json", "unknown kind of file")):  # fmt: skip
+        args = [str(bad), str(b)] if cmd == "diff" else [str(bad), "--start", "0,0", "--goal", "1,1"]
+        r = CliRunner().invoke(cli, [cmd, *args])
+        assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+        line = r.output.strip()
+        assert "\n" not in line and what in line and str(bad) in line
+        assert "a replay output folder" in line and ".ot snapshot" in line and "state .npz" in line
+
+
+def test_3d_folder_without_final_state_and_a_yaml(tmp_path):
+    b = write_trinary(tmp_path / "b.yaml", base_map())
+    (tmp_path / "empty").mkdir()
+    r = run(tmp_path / "empty", tmp_path / "empty", "--3d")
+    assert r.exit_code == 2 and "empty: folder has no snapshots/state_final.npz" in r.output
+    r = run(b, b, "--3d")
+    assert r.exit_code == 2 and "replay output folders" in r.output and "b.yaml is none of these" in r.output
+
+
+@pytest.mark.parametrize("cmd", ["diff", "plan"])
+def test_help_names_state_snapshots(cmd):
+    out = " ".join(CliRunner().invoke(cli, [cmd, "--help"]).output.split())
+    assert "exact-state .npz snapshot" in out and "replay output folder" in out

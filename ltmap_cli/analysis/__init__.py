@@ -2,8 +2,9 @@
 
 This package root holds what both share: how a map cell is classified, world <-> cell
 conversion for a ``GridMap`` (yaw honoured), and ``load_grid``, which turns whatever the user
-named on the command line (a map YAML, a replay output folder, a ``.ot`` snapshot) into a
-``GridMap``. Only numpy is imported here; numba and matplotlib are imported where they are used.
+named on the command line (a map YAML, a replay output folder, a ``.ot`` or exact-state ``.npz``
+snapshot) into a ``GridMap``. Only numpy is imported here; numba and matplotlib are imported where
+they are used.
 
 Cell classes: a cell is *unknown* when its value is negative (-1), *occupied* when its value is
 at least ``OCCUPIED_MIN`` (65: map_saver's default ``occupied_thresh`` 0.65 as a percentage),
@@ -20,8 +21,10 @@ import numpy as np
 from ..errors import MapFileError
 from ..io.mapfile import GridMap
 
+# what a map argument may be, for messages
+KINDS = "a map YAML, a replay output folder (ltmap replay -o DIR), a .ot snapshot or a state .npz snapshot"
 OCCUPIED_MIN = 65  # percent: a cell value >= this is occupied
-Z_BAND = (0.05, 1.5)  # m: default projection band of .ot snapshots (SPEC 2.3)
+Z_BAND = (0.05, 1.5)  # m: default projection band of .ot and state .npz snapshots (SPEC 2.3)
 
 
 def occupied_mask(grid: GridMap) -> np.ndarray:
@@ -97,20 +100,16 @@ def grid_extent(grid: GridMap) -> tuple[float, float, float, float]:
 
 
 def resolve_map_path(path: str | Path, what: str = "map") -> Path:
-    """The file behind a command-line map argument: a YAML, a replay folder's map.yaml, or .ot."""
+    """The file behind a command-line map argument: a YAML, a replay folder's map.yaml, a .ot or a
+    state .npz."""
     p = Path(path)
     if p.is_dir():
         y = p / "map.yaml"
         if not y.is_file():
-            raise MapFileError(
-                f"{what} {p}: folder has no map.yaml; give a map YAML, a replay output folder "
-                "(ltmap replay -o DIR) or a .ot snapshot"
-            )
+            raise MapFileError(f"{what} {p}: folder has no map.yaml; give {KINDS}")
         return y
     if not p.exists():
-        raise MapFileError(
-            f"{what} {p}: no such file; give a map YAML, a replay output folder or a .ot snapshot"
-        )
+        raise MapFileError(f"{what} {p}: no such file; give {KINDS}")
     return p
 
 
@@ -132,10 +131,7 @@ def load_grid(path: str | Path, what: str = "map", z_band: tuple[float, float] =
         return project_voxels(keys, logodds, res, z_band)
     if suffix == ".npz":
         return project_state(p, z_band)
-    raise MapFileError(
-        f"{what} {p}: unknown kind of file '{p.suffix}'; give a map YAML, a replay output folder "
-        "or a .ot snapshot"
-    )
+    raise MapFileError(f"{what} {p}: unknown kind of file '{p.suffix}'; give {KINDS}")
 
 
 def project_state(path: Path, z_band: tuple[float, float] = Z_BAND) -> GridMap:

@@ -36,12 +36,22 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
 
     def snapshot(p: Path, name: str) -> Path:
         final = Path(p) / "snapshots" / "state_final.npz"
-        return final if Path(p).is_dir() and final.is_file() else resolve_map_path(p, name)
+        if Path(p).is_dir():
+            if not final.is_file():
+                raise InputError(
+                    f"--3d: {name} {p}: folder has no snapshots/state_final.npz; give a replay output "
+                    "folder, a .ot or a state .npz snapshot"
+                )
+            return final
+        return resolve_map_path(p, name)
 
     pa, pb = snapshot(a, "A"), snapshot(b, "B")
     for name, p in (("A", pa), ("B", pb)):
         if p.suffix.lower() not in (".ot", ".npz"):
-            raise InputError(f"--3d compares two long-term snapshots (.ot or state .npz); {name} {p} is neither")
+            raise InputError(
+                f"--3d compares two long-term snapshots (.ot, state .npz or replay output folders); "
+                f"{name} {p} is none of these"
+            )
     from ..snapshots import read_snapshot_voxels
 
     ka, la, ra = read_snapshot_voxels(pa)
@@ -115,7 +125,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     metavar="LO HI",
     default=(0.05, 1.5),
     show_default=True,
-    help="Height band [m] over which .ot snapshots are projected to 2D.",
+    help="Height band [m] over which .ot and state .npz snapshots are projected to 2D.",
 )
 @click.pass_context
 def diff(
@@ -131,8 +141,9 @@ def diff(
 ) -> None:
     """Compare map A with map B cell by cell, aligned in world coordinates.
 
-    A and B are map_server YAMLs, replay output folders (their map.yaml) or .ot snapshots
-    (projected over --z-band). Maps with different origins and sizes are compared on the union
+    A and B are map_server YAMLs, replay output folders (their map.yaml), .ot snapshots or
+    exact-state .npz snapshots (snapshots/state_*.npz: the long-term layer; these two projected
+    over --z-band). Maps with different origins and sizes are compared on the union
     of their extents; a cell outside a map is unknown in it. Added: free or unknown in A,
     occupied in B. Removed: occupied in A, free in B. Unknown-changed: known in one map,
     unknown in the other (other than added/removed).

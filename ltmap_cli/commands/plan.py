@@ -56,8 +56,10 @@ def plan(
 ) -> None:
     """Plan the shortest 8-connected path on MAP from --start to --goal (A*, octile costs).
 
-    MAP is a map_server YAML, a replay output folder (its map.yaml) or a .ot snapshot. Occupied
-    cells are inflated by --robot-radius; unknown cells are forbidden unless --allow-unknown.
+    MAP is a map_server YAML, a replay output folder (its map.yaml), a .ot snapshot or an
+    exact-state .npz snapshot (snapshots/state_*.npz: its long-term layer), these two projected
+    over [0.05, 1.5] m. Occupied cells are inflated by --robot-radius; unknown cells are forbidden
+    unless --allow-unknown.
     The length is measured between cell centres. Exit status: 0 path found, 1 no path, 2 error
     (e.g. start or goal off the map or inside an obstacle).
     """
