@@ -6,8 +6,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from PIL import Image
 
+from ltmap_cli.cli import cli
 from ltmap_cli.errors import ConfigError, MapFileError
 from ltmap_cli.io.mapfile import GridMap, read_map_yaml, write_map
 
@@ -223,8 +225,22 @@ def test_image_missing(tmp_path):
 
 def test_image_unreadable(tmp_path):
     (tmp_path / "map.png").write_bytes(b"this is not an image")
-    with pytest.raises(MapFileError, match=r"map\.png: cannot read the map image"):
+    with pytest.raises(MapFileError, match=r"map\.png: not a readable PGM or PNG image") as info:
         read_map_yaml(_yaml(tmp_path, "map.png"))
+    assert "BytesIO" not in str(info.value) and "\n" not in str(info.value)
+
+
+def test_corrupt_pgm_named_by_a_map_yaml(tmp_path):
+    """A .pgm whose bytes are no image at all: the message names the PGM, not PIL's BytesIO."""
+    (tmp_path / "map.pgm").write_bytes(b"garbage, not P5\n")
+    with pytest.raises(MapFileError) as info:
+        read_map_yaml(_yaml(tmp_path, "map.pgm"))
+    assert str(info.value) == (
+        f"{tmp_path / 'map.pgm'}: not a readable PGM or PNG image (format not recognised); re-export the "
+        "map image as PGM or PNG (grayscale or RGB)"
+    )
+    r = CliRunner().invoke(cli, ["plan", str(tmp_path / "map.yaml"), "--start", "1,1", "--goal", "2,2"])
+    assert r.exit_code == 2 and r.output == f"ltmap: error: {info.value}\n"
 
 
 def test_truncated_pgm(tmp_path):

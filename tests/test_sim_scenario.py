@@ -87,6 +87,26 @@ def test_bad_scenarios_give_one_line_naming_the_key(tmp_path, doc, key, words):
     assert not (tmp_path / "out.mcap").exists()
 
 
+@pytest.mark.parametrize(
+    ("text", "words"),
+    [
+        ("", "empty file"),
+        ("# only a comment\n", "empty file"),
+        ("- a\n- b\n", "its top level is ['a', 'b'], not a mapping"),
+        ("hello\n", "its top level is 'hello', not a mapping"),
+    ],
+)
+def test_empty_or_non_mapping_scenario_names_the_file(tmp_path, text, words):
+    res = run(tmp_path, text=text)
+    assert res.exit_code == 2 and "Traceback" not in res.output, res.output
+    line = res.output.strip()
+    assert line == (
+        f"ltmap: error: {tmp_path / 'bad.yaml'}: {words}; write the scenario as key: value lines "
+        "(duration, robot, sensors, ...; see docs/scenarios.md)"
+    )
+    assert not (tmp_path / "out.mcap").exists()
+
+
 def test_not_yaml_and_missing_file(tmp_path):
     res = run(tmp_path, text="duration: [1,\n")
     assert res.exit_code == 2 and "not valid YAML at line" in res.output

@@ -223,9 +223,15 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
                 img = img.convert("LA" if mode == "La" else "RGBA")
             arr = np.asarray(img)
             mode = img.mode
-    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:
+    except UnidentifiedImageError:  # its message names the BytesIO, not the file
         raise MapFileError(
-            f"{path}: cannot read the map image ({exc}); use a PGM or PNG grayscale/RGB image"
+            f"{path}: not a readable PGM or PNG image (format not recognised); re-export the map image "
+            "as PGM or PNG (grayscale or RGB)"
+        ) from None
+    except (OSError, ValueError, SyntaxError) as exc:
+        raise MapFileError(
+            f"{path}: not a readable PGM or PNG image ({exc}); re-export the map image as PGM or PNG "
+            "(grayscale or RGB)"
         ) from None
 
     if mode.startswith("I"):  # 16-bit grey (a 16-bit PNG opens as mode I / I;16)

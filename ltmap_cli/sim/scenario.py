@@ -605,6 +605,12 @@ def parse_scenario(data: Any, source: str | Path, base_dir: Path | None = None) 
     ctx = _Ctx(str(source))
     src = Path(source)
     base_dir = base_dir if base_dir is not None else src.parent
+    if not isinstance(data, dict):
+        what = "empty file" if data is None else f"its top level is {_show(data)}, not a mapping"
+        raise ConfigError(
+            f"{source}: {what}; write the scenario as key: value lines (duration, robot, sensors, ...; "
+            "see docs/scenarios.md)"
+        )
     d = ctx.mapping(data, "", TOP_KEYS, ("duration", "robot"))
     duration = ctx.number(d, "duration", "", lo=0, hi=24 * 3600, lo_open=True)
     seed = d.get("seed", 0)
