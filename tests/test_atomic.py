@@ -25,3 +25,13 @@ def test_failure_leaves_the_old_file_and_no_temp_file(tmp_path):
         raise RuntimeError("disk full")
     assert target.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["map.yaml"]
+
+
+def test_a_folder_in_the_way_is_named_as_given(tmp_path):
+    (tmp_path / "out.png").mkdir()
+    with pytest.raises(IsADirectoryError) as info, atomic_path(tmp_path / "out.png") as tmp:
+        tmp.write_text("x")
+    assert info.value.filename == str(tmp_path / "out.png")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out.png"] and not any(
+        (tmp_path / "out.png").iterdir()
+    )

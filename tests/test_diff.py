@@ -483,3 +483,22 @@ def test_3d_folder_without_final_state_and_a_yaml(tmp_path):
 def test_help_names_state_snapshots(cmd):
     out = " ".join(CliRunner().invoke(cli, [cmd, "--help"]).output.split())
     assert "exact-state .npz snapshot" in out and "replay output folder" in out
+
+
+@pytest.mark.parametrize("cmd", ["diff", "plan"])
+def test_png_that_is_a_folder_or_under_a_file_is_named_as_given(tmp_path, cmd):
+    a = write_trinary(tmp_path / "a.yaml", base_map())
+    (tmp_path / "pics").mkdir()
+    (tmp_path / "afile").write_text("x")
+    head = [str(a), str(a)] if cmd == "diff" else [str(a), "--start", "0.1,0.1", "--goal", "0.9,0.1"]
+    example = "diff.png" if cmd == "diff" else "path.png"
+    for png, want in (
+        (tmp_path / "pics", f"--png {tmp_path / 'pics'}: is a folder; give a file name such as "
+                            f"{tmp_path / 'pics' / example}"),
+        (tmp_path / "afile" / "d.png", f"--png {tmp_path / 'afile' / 'd.png'}: {tmp_path / 'afile'} is a file"),
+    ):  # fmt: skip
+        r = CliRunner().invoke(cli, [cmd, *head, "--png", str(png)])
+        assert r.exit_code == 2 and "Traceback" not in r.output, r.output
+        assert r.output.startswith(f"ltmap: error: {want}") and r.output.count("\n") == 1, r.output
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.pgm", "a.yaml", "afile", "pics"]
+    assert not any((tmp_path / "pics").iterdir())

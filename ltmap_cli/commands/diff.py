@@ -154,6 +154,10 @@ def diff(
 
     if z_band[1] <= z_band[0]:
         raise InputError(f"--z-band {z_band[0]:g} {z_band[1]:g}: the top must exceed the bottom")
+    if png is not None and not three_d:
+        from ..io.atomic import check_file_target
+
+        check_file_target(png, "--png", "diff.png")
     if three_d:
         if png is not None:
             raise InputError("--png draws projected maps; drop --3d to get an overlay image")

@@ -66,6 +66,11 @@ def plan(
     from ..analysis import load_grid
     from ..analysis.planner import plan_on_grid
 
+    if png is not None:
+        from ..io.atomic import check_file_target
+
+        check_file_target(png, "--png", "path.png")
+
     grid = load_grid(map_path, "map")
     res = plan_on_grid(grid, start, goal, robot_radius=robot_radius, allow_unknown=allow_unknown)
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import tempfile
 from collections.abc import Iterator
@@ -18,6 +19,8 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     existing ``path`` (if any) is left untouched.
     """
     path = Path(path)
+    if path.is_dir():  # else the rename fails naming the hidden temporary file
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), str(path))
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
     os.close(fd)
@@ -30,6 +33,20 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def check_file_target(path: Path, option: str, example: str) -> None:
+    """Refuse, before any work, an output file option naming a folder or a path under a file:
+    one line naming the option and the path the user gave."""
+    from ..errors import OutputError
+
+    if path.is_dir():
+        raise OutputError(f"{option} {path}: is a folder; give a file name such as {path / example}")
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputError(f"{option} {path}: {parent} is a file, not a folder; choose another path")
+            break
 
 
 def _umask() -> int:
