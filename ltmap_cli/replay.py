@@ -41,7 +41,7 @@ from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSamp
 NS = 1_000_000_000
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
 IN_FLIGHT = 6  # frames whose rays the worker thread may compute ahead of integration
-STAGES = ("read", "tf", "rays", "integrate", "ticks", "projection", "output")
+STAGES = ("warmup", "read", "tf", "rays", "integrate", "ticks", "projection", "output")
 
 
 @dataclass
@@ -126,7 +126,9 @@ class Replay:
     busy time), ``tf`` (tf buffer and lookups), ``rays`` (points and rays; with the worker, its
     busy time, and ``rays_wait`` the time integration waited for it), ``integrate`` (ray casting
     into O), ``ticks`` (tick rules), ``projection`` (P and the virtual scan) and ``output``
-    (snapshots, maps, measurements, replay.mcap).
+    (snapshots, maps, measurements, replay.mcap); ``warmup`` is the kernels' first calls on a
+    throw-away map before the log (numba compiles them after an install, then loads them from its
+    disk cache), so that no frame or tick measures it.
     """
 
     fast: bool = True
@@ -169,6 +171,9 @@ class Replay:
             raise output_error(err, f"the output folder {req.out_dir}") from None
         if not os.access(req.out_dir, os.W_OK):
             raise OutputError(f"cannot write the output folder {req.out_dir}: permission denied; choose another -o")
+        from .outputs import check_replay_outputs
+
+        check_replay_outputs(req.out_dir, self.cfg, static=req.static is not None)
         try:
             return self._setup_and_run(t_wall0)
         except BaseException:
@@ -189,8 +194,15 @@ class Replay:
         if req.static is not None:
             static, static_info, static_layer = load_static(req.static, cfg)
         self.lmap = lmap = LayeredMap(cfg.map, static=static)
+        self._warm_up()
         resume_info = None
-        if static_layer is not None:
+        if static_layer is not None and req.resume is not None:
+            # the resumed long-term map already holds the seeds, as day 1 left them (seen gone or
+            # not): seeding again would bring back furniture seen gone
+            if len(_seed_keys(static_layer, cfg)):
+                static_info["long_term_seed_voxels"] = 0
+                static_info["long_term_seed_note"] = "not seeded: --resume carries the long-term map"
+        elif static_layer is not None:
             seeds = _seed_keys(static_layer, cfg)
             if len(seeds):
                 lmap.seed_long_term(seeds, 1.0)
@@ -382,6 +394,17 @@ class Replay:
             base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
         self.base_frame = base
 
+    def _warm_up(self) -> None:
+        from .core.projection import warm_up
+
+        t0 = time.perf_counter()
+        warm_up(self.cfg.map)
+        if self.tracker is not None:
+            from .analysis.planner import plan_path
+
+            plan_path(np.zeros((4, 4), dtype=bool), (0, 0), (3, 3))
+        self.counts.stage_s["warmup"] += time.perf_counter() - t0
+
     def _advance_ticks(self, stamp: int) -> None:
         lmap = self.lmap
         if self._tick_end is None:
@@ -395,7 +418,6 @@ class Replay:
             if tr.lt_entered or tr.lt_left:
                 self._map_dirty = True
             t1 = time.perf_counter()
-            self.counts.tick_ms.append((t1 - t_tick) * 1e3)
             stage["ticks"] += t1 - t_tick
             if self.tracker is not None:
                 self._plan((self._tick_end - self.log_start) / NS)
@@ -407,7 +429,10 @@ class Replay:
             if self._tick_end - self._t0 >= self._next_snapshot:
                 self._snapshot((self._tick_end - self._t0) / NS)
                 self._next_snapshot += self._snap_ns
-            stage["output"] += time.perf_counter() - t1
+            t2 = time.perf_counter()
+            stage["output"] += t2 - t1
+            # the whole tick: tick rules, planning, map messages and snapshots at this tick
+            self.counts.tick_ms.append((t2 - t_tick) * 1e3)
             self._tick_end += self._tick_ns
 
     def _plan(self, t_s: float) -> None:
@@ -595,15 +620,17 @@ class Replay:
         c = self.counts
         c.used[topic] += 1
         c.rays += r.rays
-        c.frame_ms.setdefault(topic, []).append((lookup_s + rays_s + integrate_s) * 1e3)
-        c.stamps.setdefault(topic, []).append(item.stamp_ns)
         self._last_stamp = max(getattr(self, "_last_stamp", 0), item.stamp_ns)
+        fused_s = 0.0
         if self.mcap is not None:
             self._frame_log.append((item.stamp_ns, self.lmap.frame_id))
         if self.mcap is not None and isinstance(item, ScanFrame):
             t0 = time.perf_counter()
             self._publish_fused_scan(item, T)
-            stage["projection"] += time.perf_counter() - t0
+            fused_s = time.perf_counter() - t0
+            stage["projection"] += fused_s
+        c.frame_ms.setdefault(topic, []).append((lookup_s + rays_s + integrate_s + fused_s) * 1e3)
+        c.stamps.setdefault(topic, []).append(item.stamp_ns)
 
     # ------------------------------------------------------------------------------------
     def _clock(self):

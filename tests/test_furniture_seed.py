@@ -124,3 +124,34 @@ def test_without_the_flag_the_furniture_is_not_in_the_map(tmp_path):
     assert int((lt.data == 100).sum()) == 0
     for x, y in cupboard_centres():
         assert cell_value(p, x, y) == 0, (x, y)  # S says free there, nothing occupies it
+
+
+def test_resume_does_not_seed_again_what_day_one_saw_gone(tmp_path):
+    """Day 1 looks at the cupboard's place (the cupboard is gone): the laser plane's seed voxels
+    are seen free and leave LT. Day 2 resumes from day 1 with the same --static: its LT starts
+    from day 1's, without the seeds coming back."""
+    static, _ = build_and_replay(tmp_path, "long-term")
+    yaw = math.atan2(1.0 - ROBOT[1], 0.75 - ROBOT[0])  # toward the cupboard's centre
+    ang = AMIN + INC * np.arange(N_BEAMS)
+    th = yaw + ang
+    # the room's inner faces are x, y = 0.15: every beam passes over the cupboard's place to them
+    ranges = np.minimum((0.15 - ROBOT[0]) / np.cos(th), (0.15 - ROBOT[1]) / np.sin(th))
+    msgs = [tf(T0, [("base_link", "laser", (0.0, 0.0, MOUNT_Z), (0, 0, 0, 1))], static=True)]
+    for i in range(-1, 32):
+        ns = T0 + int(round(i / 5.0 * 1e9))
+        msgs.append(tf(ns, [("odom", "base_link", (*ROBOT, 0.0), yaw_quat(yaw))]))
+        if 0 <= i < 30:
+            msgs.append(scan("/scan", ns + 1000, ranges, angle_min=AMIN, angle_increment=INC, range_min=0.05,
+                             range_max=10.0))  # fmt: skip
+    day1_log = write_log(tmp_path / "day1.mcap", "mcap-ros2", msgs)
+    day1 = tmp_path / "day1"
+    r = ltmap("replay", day1_log, "--static", static, "-o", day1, "-q", "--no-plots")
+    assert r.exit_code == 0, r.output
+    lt1 = json.loads((day1 / "report.json").read_text())["voxels"]["long_term_occupied"]
+    assert 3000 - 200 <= lt1 < 3000  # the seed minus the laser plane's voxels seen free (<= 10 x 20)
+    day2 = tmp_path / "day2"
+    r = ltmap("replay", tmp_path / "log.mcap", "--static", static, "--resume", day1, "-o", day2, "-q", "--no-plots")
+    assert r.exit_code == 0, r.output
+    rep2 = json.loads((day2 / "report.json").read_text())
+    assert rep2["static"]["long_term_seed_voxels"] == 0 and "resume" in rep2["static"]["long_term_seed_note"]
+    assert rep2["voxels"]["long_term_occupied"] == lt1  # day 2 looks away: day 1's LT as it was
