@@ -156,6 +156,7 @@ class Replay:
         self._next_map_ns = None
         self._map_dirty = True
         self._p_latest: Projection | None = None
+        self._p_published = None  # ((shape, origin), data) of the last /map written
         self._frame_log: deque = deque()  # (stamp ns, lmap.frame_id) of the frames of the last seconds
         self._jobs: deque = deque()
         self._pool = None
@@ -213,14 +214,17 @@ class Replay:
             resume_info = load_resume(lmap, req.resume)
 
         tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
-        for spec in cfg.replay.tf:
-            tf.add_mount(spec)
+        mounts = [tf.add_mount(spec) for spec in cfg.replay.tf]
         self.tf = tf
         out = req.out_dir
         if cfg.replay.mcap_out:
             from .io.mcap_out import ReplayMcapWriter
 
             self.mcap = ReplayMcapWriter(out / "replay.mcap")
+            # the mounts given with --tf go to /tf_static, so that a viewer places the sensors
+            # where the replay did
+            for m in mounts:
+                self.mcap.write_tf(0, [(m.parent, m.child, m.translation, m.rotation_xyzw)], static=True)
         return self._run(logs_paths=req.logs, out=out, static_info=static_info, resume_info=resume_info,
                          t_wall0=t_wall0)  # fmt: skip
 
@@ -262,10 +266,8 @@ class Replay:
                         t0 = time.perf_counter()
                         tf.add(item)
                         stage["tf"] += time.perf_counter() - t0
-                        if self.mcap is not None and isinstance(item, TfSample):
-                            self.mcap.write_tf(item.stamp_ns if not item.static else logs.start_ns,
-                                               [(item.parent.lstrip("/"), item.child.lstrip("/"), item.translation,
-                                                 item.rotation_xyzw)], static=item.static)  # fmt: skip
+                        if self.mcap is not None:
+                            self._copy_tf(item, logs.start_ns)
                     else:
                         heapq.heappush(self._pending, (item.stamp_ns, self._seq, topic, item))
                         self._seq += 1
@@ -394,6 +396,21 @@ class Replay:
             base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
         self.base_frame = base
 
+    def _copy_tf(self, item, start_ns: int) -> None:
+        """replay.mcap's /tf and /tf_static: the transforms the replay used, as it used them. A
+        sample the tf buffer ignored (an edge a --tf mount or /tf owns) is not copied; a pose taken
+        from nav_msgs/Odometry (no /tf for that edge) is written to /tf."""
+        from .transforms import norm
+
+        static = isinstance(item, TfSample) and item.static
+        source = "odom" if isinstance(item, OdometrySample) else ("static" if static else "tf")
+        edge = self.tf.edges.get(norm(item.child))
+        if edge is None or edge.source != source or edge.parent != norm(item.parent):
+            return
+        self.mcap.write_tf(start_ns if static else item.stamp_ns,
+                           [(norm(item.parent), norm(item.child), item.translation, item.rotation_xyzw)],
+                           static=static)  # fmt: skip
+
     def _warm_up(self) -> None:
         from .core.projection import warm_up
 
@@ -446,8 +463,9 @@ class Replay:
         self.tracker.update(t_s, GridMap(p.data, p.resolution, p.origin), self.robot_xy)
 
     def _publish_maps(self, stamp_ns: int, force: bool = False) -> None:
-        """/map, /long_term_map and /ltmap/occupied_voxels in replay.mcap: when LT changed, at
-        most every map_period; the static voxels once."""
+        """/map, /long_term_map and /ltmap/occupied_voxels in replay.mcap: at a tick where P
+        changed (an obstacle entered or left LT, or free space grew), at most every map_period;
+        the static voxels once."""
         if self._next_map_ns is None:
             self._next_map_ns = stamp_ns
             if self.lmap.static is not None:
@@ -456,12 +474,17 @@ class Replay:
                 keys = self.lmap.static.voxel_keys()
                 self.mcap.write_cloud("/ltmap/static_voxels", stamp_ns, coord_to_pos(keys, self.lmap.resolution),
                                       self.fixed_frame)  # fmt: skip
-        if not force and (stamp_ns < self._next_map_ns or not self._map_dirty):
+        if not force and stamp_ns < self._next_map_ns:
             return
         from .core.grid import coord_to_pos
 
         lmap, frame = self.lmap, self.fixed_frame
         p = project(lmap)
+        sig = (p.data.shape, tuple(p.origin))
+        last = self._p_published
+        if not force and not self._map_dirty and last is not None and last[0] == sig and np.array_equal(last[1], p.data):
+            return
+        self._p_published = (sig, p.data)
         self._p_latest = p
         self.mcap.write_grid("/map", stamp_ns, p.data, p.resolution, p.origin, frame)
         lt = project(lmap, use_static=False)

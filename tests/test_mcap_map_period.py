@@ -66,13 +66,10 @@ def test_map_messages_are_period_apart_and_each_one_changed(runs, period):
     assert times[-1] > times[-2]
     # published on tick ends only: every periodic stamp is a whole number of ticks after the first
     assert all((t - times[0]) % TICK_NS == 0 for t in times[:-1])
-    # a grid is only published when it changed: no two consecutive grids are identical, nor even have
-    # the same occupied cells (publishing follows LT, and on this laser-only log every voxel that
-    # enters or leaves LT is alone in its column of the projection band)
+    # a grid is only published when it changed: no two consecutive grids are identical (P changes
+    # as obstacles enter or leave LT and as free space grows)
     for (t0, _, a), (t1, _, b) in zip(maps, maps[1:]):
-        assert a.shape == b.shape
-        assert not np.array_equal(a, b), f"same /map at {t0 / NS} and {t1 / NS}"
-        assert ((a == 100) != (b == 100)).any(), f"same occupied cells at {t0 / NS} and {t1 / NS}"
+        assert a.shape != b.shape or not np.array_equal(a, b), f"same /map at {t0 / NS} and {t1 / NS}"
     # the last one is the map written to map.pgm
     g = read_map_yaml(out / "map.yaml")
     assert np.array_equal(maps[-1][2], g.data)

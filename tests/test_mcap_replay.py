@@ -156,3 +156,35 @@ def test_fused_scan_drops_o_obstacles_no_sensor_updated_within_the_window(tmp_pa
         else:
             assert all(through), f"at {t:.1f} s the fused scan neither stops at the table nor sees the wall"
     assert seen_at and min(seen_at) < 0.5 and 1.8 <= max(seen_at) <= 3.0 + 1e-6
+
+
+def test_tf_in_the_mcap_is_what_the_replay_used(tmp_path):
+    """A log with odometry instead of /tf for odom -> base_link and a wrong laser mount on
+    /tf_static, corrected with --tf: replay.mcap holds the odometry poses on /tf and the --tf
+    mount (not the log's) on /tf_static, so a viewer places the laser where the replay did."""
+    from logfactory import odometry
+    from test_replay import room_messages
+
+    msgs = []
+    for m in room_messages(0.0, 3.0, pillar=False, static_mount=False):
+        if m.topic == "/tf":  # odom -> base_link from nav_msgs/Odometry instead
+            x, y, yaw = ROBOT
+            msgs.append(odometry("/odom", m.log_time_ns, "odom", "base_link", (x, y, 0.0), yaw_quat(yaw)))
+        else:
+            msgs.append(m)
+    msgs.insert(0, tf(T0, [("base_link", "laser", (5.0, 5.0, 5.0), (0, 0, 0, 1))], static=True))  # wrong
+    log = write_log(tmp_path / "odom.mcap", "mcap-ros2", msgs)
+    out = tmp_path / "out"
+    mount = ",".join(str(v) for v in (*MOUNT, 0, 0, 0))
+    r = run(["replay", str(log), "-o", str(out), "-q", "--mcap-out", "--tf", f"base_link:laser={mount}"])
+    assert r.exit_code == 0, r.output
+    got = read_back(out / "replay.mcap")
+    (_, _, st), = got["/tf_static"]
+    (laser,) = [t for t in st.transforms if t.child_frame_id == "laser"]
+    assert laser.header.frame_id == "base_link"
+    v = laser.transform.translation
+    assert (v.x, v.y, v.z) == pytest.approx(MOUNT)
+    dyn = [t for _, _, m in got["/tf"] for t in m.transforms]
+    assert len(dyn) == sum(1 for m in msgs if m.topic == "/odom")
+    assert {(t.header.frame_id, t.child_frame_id) for t in dyn} == {("odom", "base_link")}
+    assert dyn[0].transform.translation.x == pytest.approx(ROBOT[0])
