@@ -11,11 +11,12 @@ import importlib
 import importlib.util
 import os
 import sys
+import warnings
 
 import click
 
 from . import __version__
-from .errors import LtmapError
+from .errors import LtmapError, LtmapWarning
 
 # name -> (module, attribute, one-line help shown by `ltmap --help` without importing it)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -50,6 +51,43 @@ class LazyGroup(click.Group):
             with formatter.section("Commands"):
                 formatter.write_dl(rows)
 
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """Click's main, with every error in one line: a usage error (bad option value, missing
+        argument, unknown option or command) is ``ltmap: error: <what>; see ltmap CMD --help``,
+        exit status 2, instead of click's four lines. ``LtmapWarning``s from below the CLI are
+        printed as ``ltmap: warning: ...`` lines on stderr."""
+        prog_name = prog_name or "ltmap"  # also when called as a function (tests): messages say ltmap
+        self._invoked = prog_name  # the command line so far, for errors click raises without a context
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", LtmapWarning)
+            warnings.showwarning = _show_warning(warnings.showwarning)
+            try:
+                rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+                code = rv if isinstance(rv, int) else 0  # an int is the status of ctx.exit(...)
+            except click.exceptions.NoArgsIsHelpError as exc:  # bare `ltmap`: the help, as click does
+                exc.show()
+                code = exc.exit_code
+            except click.UsageError as exc:
+                where = exc.ctx.command_path if exc.ctx is not None else self._invoked
+                what = " ".join(exc.format_message().split()).rstrip(".")
+                click.echo(f"ltmap: error: {what}; see {where} --help", err=True)
+                code = 2
+            except click.ClickException as exc:
+                click.echo(f"ltmap: error: {' '.join(exc.format_message().split())}", err=True)
+                code = exc.exit_code
+            except click.Abort:
+                click.echo("Aborted!", err=True)
+                code = 1
+        if standalone_mode:
+            sys.exit(code)
+        return code
+
+    def resolve_command(self, ctx: click.Context, args: list[str]):
+        name, cmd, rest = super().resolve_command(ctx, args)
+        if cmd is not None:
+            self._invoked = f"{ctx.command_path} {cmd.name or name}"
+        return name, cmd, rest
+
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
@@ -65,7 +103,18 @@ class LazyGroup(click.Group):
             ctx.exit(exc.exit_code)
 
 
-@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+def _show_warning(fallback):
+    def show(message, category, filename, lineno, file=None, line=None):
+        if not issubclass(category, LtmapWarning):
+            return fallback(message, category, filename, lineno, file, line)
+        if sys.stderr.isatty():
+            sys.stderr.write("\n")  # off the progress bar's line
+        click.echo(f"ltmap: warning: {message}", err=True)
+
+    return show
+
+
+@click.group("ltmap", cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="ltmap")
 @click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
 @click.pass_context

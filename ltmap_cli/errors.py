@@ -54,3 +54,9 @@ class NoPathError(LtmapError):
     """The planner found no path (exit status 1, like a search that found nothing)."""
 
     exit_code = 1
+
+
+class LtmapWarning(UserWarning):
+    """Something a user should know that does not stop the run (a damaged message skipped).
+
+    Raised with ``warnings.warn`` below the CLI; the CLI prints it as one ``ltmap: warning:`` line."""
