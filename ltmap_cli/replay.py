@@ -369,7 +369,7 @@ class Replay:
             "processing_latency_ms": processing,
             "outputs": outputs,
         }
-        write_text_atomic(out / "config.yaml", dump_config(cfg))
+        write_text_atomic(out / "config.yaml", self._inputs_comment() + dump_config(cfg))
         write_text_atomic(out / "report.json", json.dumps(report, indent=2, default=_json_default) + "\n")
         return report
 
@@ -395,6 +395,21 @@ class Replay:
         if base not in frames:
             base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
         self.base_frame = base
+
+    def _inputs_comment(self) -> str:
+        """config.yaml's header: the inputs of this run, which are not parameters, so that the run
+        can be repeated with ``ltmap replay LOGS --config config.yaml`` and these options."""
+        import shlex
+
+        req = self.req
+        args = ["ltmap", "replay", *(str(p) for p in req.logs)]
+        if req.static is not None:
+            args += ["--static", str(req.static)]
+        if req.resume is not None:
+            args += ["--resume", str(req.resume)]
+        args += ["-o", str(req.out_dir), "--config", str(req.out_dir / "config.yaml")]
+        return ("# every parameter of this run; its inputs were:\n"
+                f"# {shlex.join(args)}\n")  # fmt: skip
 
     def _copy_tf(self, item, start_ns: int) -> None:
         """replay.mcap's /tf and /tf_static: the transforms the replay used, as it used them. A

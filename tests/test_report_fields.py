@@ -95,3 +95,24 @@ def test_progress_line_on_stderr_unless_quiet(runs):
     assert not any(PROGRESS.match(line) for line in quiet.stderr.splitlines())
     # the summary line (stdout) is printed either way
     assert "x real time" in quiet.stdout and "x real time" in result.stdout
+
+
+def test_config_yaml_names_the_inputs_and_repeats_the_run(tmp_path):
+    """config.yaml holds the parameters; its header comment names the inputs (logs, --static,
+    --resume), which are not parameters. Running the header's command gives the same map."""
+    import shlex
+
+    first = tmp_path / "first"
+    r = _runner().invoke(cli, ["replay", str(LOG), "-o", str(first), "-q", "--no-plots",
+                               "--set", "map.layers.st_rise_s=10"])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    text = (first / "config.yaml").read_text()
+    header = text.splitlines()[1]
+    assert header.startswith("# ltmap replay ")
+    args = shlex.split(header[2:])
+    assert args[2] == str(LOG) and args[args.index("-o") + 1] == str(first)
+    args[args.index("-o") + 1] = str(tmp_path / "again")
+    r = _runner().invoke(cli, [*args[1:], "-q", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert (tmp_path / "again" / "map.pgm").read_bytes() == (first / "map.pgm").read_bytes()
+    assert "st_rise_s: 10.0" in (tmp_path / "again" / "config.yaml").read_text()
