@@ -34,21 +34,26 @@ Errors: a missing, empty or unrecognized path raises ``InputError``; an unreadab
 ``LogReadError``; bad topic names raise ``InputError`` listing what the log has. A log that is
 cut off or corrupt is read up to the damage; at the end of the stream ``messages()`` raises
 ``TruncatedLogError`` (a ``LogReadError``) saying where reading stopped, unless
-``allow_truncated`` is set, in which case ``stats.stopped_at`` records it. A message that cannot
-be decoded, or a LaserScan whose ranges do not match its angles, raises ``LogReadError`` naming
-the topic, message index (0-based, per topic and file) and file.
+``allow_truncated`` is set, in which case ``stats.stopped_at`` records it. A message whose bytes
+cannot be deserialized (damaged inside an intact log: a garbage row in a .db3, flipped bytes in a
+.bag) is skipped and counted in ``skipped`` as ``cannot decode the message on <topic>``; the first
+one per topic is reported as an ``LtmapWarning`` naming its message index (0-based, per topic and
+file) and file, and the stream goes on. A message type the log has no definition or decoder for,
+or a LaserScan whose ranges do not match its angles, raises ``LogReadError`` naming the topic,
+message index and file.
 """
 
 from __future__ import annotations
 
 import heapq
+import warnings
 from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError, LogReadError
+from ..errors import InputError, LogReadError, LtmapWarning
 from . import decode as dec
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
 from .sources import Source, TopicInfo, normalize_type, open_source
@@ -70,6 +75,10 @@ Frame = ScanFrame | CloudFrame | DepthFrame | TfSample | OdometrySample
 
 class TruncatedLogError(LogReadError):
     """A log ended early or is corrupt; everything before the damage was yielded."""
+
+
+class _Undecodable(Exception):
+    """One message's bytes could not be deserialized (the message is skipped, not the run)."""
 
 
 @dataclass
@@ -188,6 +197,7 @@ class LogSet:
         self.stats = ReadStats()
         self.skipped: Counter[str] = Counter()
         self.rate_skipped: Counter[str] = Counter()  # depth images dropped by depth_max_rate, per topic
+        self._warned: set[str] = set()  # topics whose undecodable messages were reported
         self.topics: dict[str, TopicInfo] = {}
         for src in sources:
             for t in src.topics.values():
@@ -282,7 +292,8 @@ class LogSet:
         min_gap = int(0.9e9 / depth_max_rate) if depth_max_rate > 0 else 0
         last_depth: dict[str, int] = {}
         static = set(sel.static_tf)
-        latest_info: dict[str, Any] = {}  # topic -> (decode, where) not yet decoded, or the message
+        latest_info: dict[str, Any] = {}  # topic -> (decode, where, parser) of its newest message
+        good_info: dict[str, Any] = {}  # topic -> its newest message that could be decoded
         for topic, t, decode, where in self.raw(kinds):
             kind = kinds[topic]
             parser = parsers[topic] if getattr(decode, "encoding", "") == "cdr" else None
@@ -291,7 +302,12 @@ class LogSet:
                 continue
             if kind == "depth":
                 info_topic = sel.depths[topic]
-                if info_topic not in latest_info:
+                if info_topic in latest_info:  # decoded only when an image needs it
+                    pending = latest_info.pop(info_topic)
+                    info = self._decode_or_skip(info_topic, *pending)
+                    if info is not None:
+                        good_info[info_topic] = info
+                if info_topic not in good_info:
                     self.skipped[f"depth image on {topic} before any CameraInfo on {info_topic}"] += 1
                     continue
                 if min_gap:
@@ -303,7 +319,9 @@ class LogSet:
                             stamp = None
                     msg = None
                     if stamp is None:
-                        msg = self._decode(decode, where, None)
+                        msg = self._decode_or_skip(topic, decode, where, None)
+                        if msg is None:
+                            continue
                         stamp = dec.stamp_ns(msg.header.stamp)
                     last = last_depth.get(topic)
                     if last is not None and stamp < last + min_gap:
@@ -311,18 +329,20 @@ class LogSet:
                         continue
                     last_depth[topic] = stamp
                     if msg is None:
-                        msg = self._decode(decode, where, parser)
+                        msg = self._decode_or_skip(topic, decode, where, parser)
                 else:
-                    msg = self._decode(decode, where, parser)
-                info = latest_info[info_topic]
-                if isinstance(info, tuple):
-                    info = latest_info[info_topic] = self._decode(*info)
+                    msg = self._decode_or_skip(topic, decode, where, parser)
+                if msg is None:
+                    continue
+                info = good_info[info_topic]
                 if fast:
                     yield topic, t, dec.decode_depth_raw(msg, info, topic, where)
                 else:
                     yield topic, t, dec.decode_depth(msg, info, topic, where)
                 continue
-            msg = self._decode(decode, where, parser)
+            msg = self._decode_or_skip(topic, decode, where, parser)
+            if msg is None:
+                continue
             if kind == "scan":
                 yield topic, t, dec.decode_scan(msg, topic, where)
             elif kind == "cloud":
@@ -332,6 +352,20 @@ class LogSet:
                     yield topic, t, s
             else:
                 yield topic, t, dec.decode_odometry(msg)
+
+    def _decode_or_skip(self, topic: str, decode: Any, where: str, parser: Any) -> Any:
+        """The message, or None when its bytes are damaged: then it is counted in ``skipped``
+        and the first one of its topic is reported as an ``LtmapWarning``."""
+        try:
+            return self._decode(decode, where, parser)
+        except _Undecodable as err:
+            self.skipped[f"cannot decode the message on {topic}"] += 1
+            if topic not in self._warned:
+                self._warned.add(topic)
+                warnings.warn(LtmapWarning(f"{err}; skipped it, and any other message on {topic} that cannot "
+                                           f"be decoded (counted in report.json messages_not_decoded)"),
+                              stacklevel=2)
+            return None
 
     @staticmethod
     def _decode(decode: Any, where: str, parser: Any) -> Any:
@@ -348,8 +382,7 @@ class LogSet:
             raise LogReadError(f"cannot decode the message {where}: {err}") from None
         except Exception as err:  # noqa: BLE001 - deserializer errors on damaged data
             reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
-            raise LogReadError(f"cannot decode the message {where} ({reason}); the log is corrupt: "
-                               f"leave this topic out with --scan-topic/--cloud-topic/--depth-topic") from None
+            raise _Undecodable(f"cannot decode the message {where} ({reason}); the message is damaged") from None
 
     def close(self) -> None:
         for s in self.sources:
