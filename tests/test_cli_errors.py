@@ -1,11 +1,15 @@
-"""The CLI's own errors: click's usage errors in one line."""
+"""The CLI's own errors: click's usage errors in one line, and the same log given twice."""
 
 from __future__ import annotations
 
+import json
+import os
 from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
+from logfactory import write_log
+from test_replay import room_messages
 
 from ltmap_cli.cli import cli
 
@@ -50,3 +54,30 @@ def test_help_and_version_still_exit_0():
         assert r.exit_code == 0 and r.stdout.startswith("Usage: ltmap") and r.stderr == "", args
     r = _invoke(["--version"])
     assert r.exit_code == 0 and r.stdout.startswith("ltmap, version ")
+
+
+def test_the_same_log_given_twice_is_refused(tmp_path):
+    log = write_log(tmp_path / "a.mcap", "mcap-ros2", room_messages(0.0, 2.0, False))
+    out = tmp_path / "o"
+    r = _invoke(["replay", log, log, "-o", out, "-q", "--no-plots"])
+    assert r.exit_code == 2
+    assert r.stderr == (f"ltmap: error: log {log} is given twice; its messages would be integrated twice: "
+                        f"give each log once\n")
+    assert not out.exists()
+    os.symlink(log, tmp_path / "b.mcap")
+    r = _invoke(["replay", log, tmp_path / "b.mcap", "-o", out, "-q", "--no-plots"])
+    assert r.exit_code == 2 and f"log {tmp_path / 'b.mcap'} is given twice (the same log as {log})" in r.stderr
+    r = _invoke(["info", log, log])
+    assert r.exit_code == 2 and "is given twice" in r.stderr
+    # once is fine: 10 scans (5 Hz for 2 s), each used once
+    r = _invoke(["replay", log, "-o", out, "-q", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert json.loads((out / "report.json").read_text())["frames_used"] == {"/scan": 10}
+
+
+def test_a_ros2_bag_as_folder_and_as_metadata_is_the_same_log(tmp_path):
+    bag = write_log(tmp_path / "bag", "ros2-sqlite3", room_messages(0.0, 2.0, False))
+    r = _invoke(["replay", bag, bag / "metadata.yaml", "-o", tmp_path / "o", "-q", "--no-plots"])
+    assert r.exit_code == 2
+    assert f"log {bag / 'metadata.yaml'} is given twice (the same log as {bag})" in r.stderr
+    assert not (tmp_path / "o").exists()

@@ -31,7 +31,9 @@ to it (``.../camera_info``), else with the log's only CameraInfo topic; the late
 seen is used; images before any CameraInfo are counted in ``skipped``.
 
 Errors: a missing, empty or unrecognized path raises ``InputError``; an unreadable log raises
-``LogReadError``; bad topic names raise ``InputError`` listing what the log has. A log that is
+``LogReadError``; the same log given twice (as the same file, or a ROS 2 bag as its folder and its
+``metadata.yaml``) raises ``InputError``; bad topic names raise ``InputError`` listing what the
+log has. A log that is
 cut off or corrupt is read up to the damage; at the end of the stream ``messages()`` raises
 ``TruncatedLogError`` (a ``LogReadError``) saying where reading stopped, unless
 ``allow_truncated`` is set, in which case ``stats.stopped_at`` records it. A message whose bytes
@@ -403,9 +405,18 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     if not paths:
         raise InputError("no log given; give a ROS 1 .bag, a ROS 2 bag folder or an .mcap file")
     sources: list[Source] = []
+    given: dict[Path, Path] = {}  # resolved file of each source -> the path given for it
     try:
         for p in paths:
-            sources.extend(open_source(p))
+            opened = open_source(p)
+            sources.extend(opened)
+            for src in opened:
+                real = Path(src.path).resolve()
+                if real in given:
+                    same = "" if given[real] == p else f" (the same log as {given[real]})"
+                    raise InputError(f"log {p} is given twice{same}; its messages would be integrated "
+                                     f"twice: give each log once")
+                given[real] = p
     except BaseException:
         for s in sources:
             s.close()
