@@ -123,6 +123,7 @@ class _Edge:
     source: str  # "tf" | "static" | "odom" | "mount"
     times: list[int] = field(default_factory=list)
     values: list[np.ndarray] = field(default_factory=list)  # (7,) tx ty tz qx qy qz qw
+    count: int = 0  # samples this edge got from its source, including those the window dropped
 
     @property
     def timeless(self) -> bool:
@@ -180,6 +181,7 @@ class TfBuffer:
             edge = self.edges[child] = _Edge(parent, source)
             self._chains.clear()
         value = np.array([*t, *q], dtype=np.float64)
+        edge.count += 1
         if edge.timeless:
             edge.times, edge.values = [0], [value]
             return
@@ -338,7 +340,8 @@ class TfBuffer:
         return choose_fixed_frame(self.frames, requested)
 
     def tree_text(self, indent: str = "  ") -> str:
-        """The frames as an indented tree; each edge shows its source and sample count."""
+        """The frames as an indented tree; each edge shows its source and how many samples it got
+        (all of them, not only those still in the window)."""
         children: dict[str, list[str]] = {}
         for child, e in self.edges.items():
             children.setdefault(e.parent, []).append(child)
@@ -352,7 +355,7 @@ class TfBuffer:
             elif e.timeless:
                 note = f"  [{'user mount' if e.source == 'mount' else 'static'}]"
             else:
-                note = f"  [{e.source}, {len(e.times)} samples]"
+                note = f"  [{e.source}, {e.count} samples]"
             lines.append(f"{indent * depth}{frame}{note}")
             for c in sorted(children.get(frame, [])):
                 if c not in seen:

@@ -102,6 +102,7 @@ def test_info_real_pioneer_bag():
     assert lines["/scan"][1:3] == ["sensor_msgs/msg/LaserScan", "311"]
     assert lines["/pose"][1:3] == ["nav_msgs/msg/Odometry", "313"]
     assert lines["/tf"][2] == "317"
+    assert "    base_link  [tf, 317 samples]" in res.output  # every sample, not the 10 s window
     assert lines["/sonar"][1] == "p2os_msgs/msg/SonarArray"
     assert "duration:  31.3" in res.output
     assert "give its mount with --tf base_link:laser=x,y,z,roll,pitch,yaw" in res.output
@@ -120,3 +121,49 @@ def test_info_real_comprobo_bag():
     assert "      rplidar_link  [static]" in res.output
     assert "fixed frame: odom" in res.output
     assert "warnings: none" in res.output
+
+
+def test_info_warns_on_a_scan_whose_ranges_do_not_match_its_angles(tmp_path):
+    """The check replay makes on every scan (replay exits 2 on this log) is made on the first scan."""
+    msgs = [tf(S, [("odom", "laser")]),
+            scan("/scan", S + 1, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1, angle_max=1.0),
+            scan("/laser2", S + 2, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1)]
+    path = write_log(tmp_path / "bad.mcap", "mcap-ros2", msgs)
+    res = _run(path)
+    assert res.exit_code == 0, res.output
+    assert "warnings: none" not in res.output
+    warned = [ln for ln in res.output.splitlines() if "replay would stop on its first message" in ln]
+    assert len(warned) == 1, res.output  # /laser2 is consistent
+    assert warned[0].startswith(f"  - /scan: replay would stop on its first message: LaserScan on /scan, "
+                                f"message index 0 in {path}: 3 ranges do not match angle_min 0, angle_max 1, ")
+    replay = CliRunner().invoke(cli, ["replay", str(path), "-o", str(tmp_path / "o"), "--no-plots", "-q"])
+    assert replay.exit_code == 2 and "3 ranges do not match" in replay.stderr
+
+
+def test_info_fixed_frame_not_in_tf_fails_as_replay_does(tmp_path):
+    path = _robot_log(tmp_path)
+    mount = ["--tf", "base_link:laser=0.1,0,0.2,0,0,0"]
+    res = _run(path, "--fixed-frame", "world", *mount)
+    replay = CliRunner().invoke(cli, ["replay", str(path), "--fixed-frame", "world", *mount,
+                                      "-o", str(tmp_path / "o"), "--no-plots", "-q"])
+    assert res.exit_code == 2 and replay.exit_code == 2
+    line = "ltmap: error: --fixed-frame world: no frame world in tf (frames: base_link, laser, odom); choose one of them"
+    assert res.stderr.splitlines() == [line] and replay.stderr.splitlines() == [line]
+    assert "world" not in res.stdout.split("warnings:")[1]  # said once, as the error
+    assert _run(path, "--fixed-frame", "odom", *mount).exit_code == 0
+    # no --fixed-frame and neither map nor odom: a warning, the listing shows what to choose from
+    other = write_log(tmp_path / "w.mcap", "mcap-ros2", [tf(S, [("world", "base_link")]), scan("/scan", S, [1.0])])
+    res = _run(other)
+    assert res.exit_code == 0
+    assert "  - tf has neither map nor odom (frames: base_link, world); choose the fixed frame with --fixed-frame" \
+        in res.output
+
+
+def test_info_tf_tree_counts_every_sample_of_the_log(tmp_path):
+    """30 s of tf at 10 Hz: the tree says 301 samples, not what the 10 s window still holds."""
+    msgs = [tf(S + i * S // 10, [("odom", "base_link", (0.01 * i, 0.0, 0.0))]) for i in range(301)]
+    msgs += [tf(S, [("base_link", "laser")], static=True), scan("/scan", 2 * S, [1.0, 2.0])]
+    msgs.sort(key=lambda m: m.log_time_ns)
+    res = _run(write_log(tmp_path / "long.bag", "ros1", msgs))
+    assert res.exit_code == 0, res.output
+    assert "tf tree:\n  odom\n    base_link  [tf, 301 samples]\n      laser  [static]\n" in res.output

@@ -1,9 +1,13 @@
 """`ltmap info LOG [LOG...]`: what a log holds and what `replay` would use, with warnings.
 
 One streaming pass over every message: counts, first/last log time per topic, the tf tree (tf
-messages are decoded into a bounded TfBuffer), and the first message of each sensor topic (its
-frame and, for images, the encoding). Nothing is kept per message, so memory does not grow with
-the log.
+messages are decoded into a bounded TfBuffer; each edge shows how many samples the log has), and
+the first message of each sensor topic (its frame, for images the encoding, for LaserScans the
+check replay makes that the ranges match the angles). Nothing is kept per message, so memory does
+not grow with the log.
+
+Exit status 2, after the listing, for a truncated log (unless --allow-truncated) and for a
+--fixed-frame that tf does not have, with the line replay would stop with.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ def gather(
     allow_truncated: bool = False,
 ) -> dict:
     """Everything `info` shows, as a dict (also used by tests). Raises like the readers."""
+    from ..errors import LogReadError, TransformError
     from ..io import decode as dec
     from ..io.logs import IMAGE, TruncatedLogError, open_logs
     from ..transforms import TfBuffer
@@ -54,6 +59,7 @@ def gather(
         first: dict[str, int] = {}
         last: dict[str, int] = {}
         sensor_first: dict[str, object] = {}
+        sensor_where: dict[str, str] = {}
         warnings: list[str] = []
         static = set(sel.static_tf)
         sensors = set(sel.sensor_topics) | set(sel.skipped)
@@ -82,17 +88,22 @@ def gather(
                     buf.add(dec.decode_odometry(msg))
                 else:
                     sensor_first[topic] = msg
+                    sensor_where[topic] = where
         stopped = logs.stats.stopped_at
         topics = logs.topics
         names = [str(p) for p in paths]
         formats = logs.formats
 
     frames = buf.frames
+    error = None
     try:
         fixed = buf.fixed_frame(fixed_frame)
-    except Exception as err:  # noqa: BLE001 - TransformError: shown as a warning
+    except TransformError as err:
         fixed = None
-        warnings.append(str(err))
+        if fixed_frame:  # a frame asked for and not in tf: replay stops on it, so does info
+            error = err
+        else:  # neither map nor odom: the listing shows the frames to choose from
+            warnings.append(str(err))
     used: dict[str, str] = {}
     for kind, group in (("laser", sel.scans), ("cloud", sel.clouds), ("depth", list(sel.depths))):
         for topic in group:
@@ -104,6 +115,11 @@ def gather(
                 continue
             frame = dec.frame_name(msg.header.frame_id)
             used[topic] = f"{kind}, frame {frame}"
+            if kind == "laser":
+                try:  # the check replay makes on every scan
+                    dec.decode_scan(msg, topic, sensor_where[topic])
+                except LogReadError as err:
+                    warnings.append(f"{topic}: replay would stop on its first message: {err}")
             if kind == "depth":
                 used[topic] += f" (CameraInfo {sel.depths[topic]})"
                 enc = str(getattr(msg, "encoding", ""))
@@ -159,7 +175,9 @@ def gather(
         "warnings": warnings,
         "stopped_at": stopped,
     }
-    if stopped and not allow_truncated:
+    if error is not None:
+        result["error"] = error
+    elif stopped and not allow_truncated:
         result["error"] = TruncatedLogError(
             f"log is truncated or corrupt: {stopped}; to use what was read "
             f"before that point, pass --allow-truncated"
