@@ -440,9 +440,11 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.perf_counter()
     sensors = {"laser": laser_frames(n_laser, rng), "depth": depth_frames(n_depth, rng)}
     t_frames = time.perf_counter() - t0
-    # warm-up on real frames in a throw-away map (kernels compiled, caches warm)
+    # warm-up on real frames in a throw-away map (kernels compiled, caches warm), in both modes the
+    # rows use (depth rows cast one ray per end voxel: the dedupe kernel must not compile in a row)
     for frames in sensors.values():
-        run_ltmap(frames[:1], 0.05, 8.0)
+        for dedupe in (False, True):
+            run_ltmap(frames[:1], 0.05, 8.0, dedupe=dedupe)
 
     rows = []
     for sensor, frames in sensors.items():

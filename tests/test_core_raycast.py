@@ -174,3 +174,26 @@ def test_dedupe_casts_one_ray_per_end_voxel_with_the_same_result_for_hits():
     assert ra.rays == 120 and ra.hits == rb.hits == 3
     assert {tuple(k) for k in a.occupied_keys("O").tolist()} == {tuple(k) for k in b.occupied_keys("O").tolist()}
     assert rb.misses <= ra.misses and rb.misses > 0
+
+
+def test_far_coordinates_are_refused_not_silently_merged():
+    """Voxel keys are packed with 21 bits per axis: beyond +-2^20 voxels (52 km at 0.05 m) two
+    voxels would share a key. Within it a ray is exact; beyond, the frame is refused."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.errors import CoreError
+
+    m = LayeredMap(MapConfig())
+    x0 = 40_000.01  # 40 km east: a ray of 1 m along +x, 20 voxels (19 misses, 1 hit)
+    r = m.integrate([x0, 0.01, 1.01], [[x0 + 0.99, 0.01, 1.01]], dedupe=True)
+    assert (r.hits, r.misses) == (1, 19)
+    assert len(m.occupied_keys("O")) == 1
+    for origin in ([60_000.0, 0.0, 1.0], [0.0, -60_000.0, 1.0]):
+        with pytest.raises(CoreError, match=r"beyond \+-52\.4 km"):
+            m.integrate(origin, [[origin[0] + 1.0, origin[1], 1.0]], dedupe=True)
+    with pytest.raises(CoreError, match="not finite"):
+        m.integrate([np.nan, 0.0, 1.0], [[1.0, 0.0, 1.0]])
+    with pytest.raises(CoreError, match="long-term voxel"):
+        m.seed_long_term(np.array([[10_000_000, 0, 20]]), 1.0)
+    # a max-range cut bounds the reach: a point 100 km away with max_range 4 m is fine near the origin
+    m.integrate([0.01, 0.01, 1.01], [[100_000.0, 0.01, 1.01]], max_range=4.0)

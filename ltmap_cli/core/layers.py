@@ -426,6 +426,25 @@ class TickResult:
     st_forgotten: int
 
 
+KEY_LIMIT = (1 << 20) - 2  # voxel keys within +-KEY_LIMIT: the packed keys of the end-point dedupe
+# hold 21 bits per axis (block keys: 21 bits of block coordinates), so farther voxels would collide
+
+
+def check_extent(origin: np.ndarray, reach: float, resolution: float, what: str = "sensor") -> None:
+    """CoreError unless ``origin`` is finite and every voxel within ``reach`` metres of it has
+    keys within +-KEY_LIMIT (+-52 km at 0.05 m): beyond, voxels would silently share keys."""
+    if not np.isfinite(origin).all():
+        raise CoreError(f"{what} origin is not finite ({origin.tolist()}); check the poses (tf, odometry)")
+    limit_m = KEY_LIMIT * resolution
+    if float(np.abs(origin).max()) + reach >= limit_m:
+        raise CoreError(
+            f"{what} at ({origin[0]:.1f}, {origin[1]:.1f}, {origin[2]:.1f}) m, reaching {reach:g} m, is beyond "
+            f"+-{limit_m / 1000:.1f} km of the fixed frame's origin, the extent of ltmap's voxel keys at "
+            f"{resolution:g} m; use a fixed frame near the robot (--fixed-frame, e.g. a local map or odom) "
+            f"or a coarser --resolution"
+        )
+
+
 class LayeredMap:
     """S, O, ST and LT on one voxel lattice, with SPEC 2's update rules."""
 
@@ -501,6 +520,12 @@ class LayeredMap:
             rets = np.ascontiguousarray(returns, dtype=np.bool_).reshape(-1)
             if len(rets) != len(pts):
                 raise CoreError(f"integrate: {len(pts)} points but {len(rets)} return flags")
+        if max_range > 0:
+            reach = float(max_range) + self.resolution
+        else:  # no cut: the farthest finite point
+            fin = pts[np.isfinite(pts).all(axis=1)]
+            reach = float(np.abs(fin - origin).max()) + self.resolution if len(fin) else 0.0
+        check_extent(origin, reach, self.resolution)
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         ends, kind = classify_rays(
             origin, pts, rets, float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max,
@@ -537,6 +562,15 @@ class LayeredMap:
             unit_mm = False
         else:
             raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        if max_range > 0:
+            reach = float(max_range)
+        elif unit_mm:
+            reach = 65.535  # the largest 16UC1 depth
+        else:
+            fin = depth[np.isfinite(depth)]
+            reach = float(fin.max()) * 4.0 if len(fin) else 0.0  # depth -> range: corners of a 150 deg FOV
+        check_extent(T[:3, 3], reach + self.resolution, self.resolution, "depth camera")
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         return depth_image_rays(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(T, dtype=np.float64),
@@ -695,6 +729,9 @@ class LayeredMap:
         vals = np.broadcast_to(np.asarray(values, dtype=np.float32), (len(keys),))
         if len(keys) and (vals.min() < 0 or vals.max() > 1):
             raise CoreError("long-term values must lie in [0, 1]")
+        if len(keys) and int(np.abs(keys).max()) > KEY_LIMIT:
+            far = keys[np.abs(keys).max(axis=1).argmax()] * self.resolution
+            check_extent(far.astype(np.float64), 0.0, self.resolution, "long-term voxel")
         self.D.set("lt", keys, vals)
 
     # -- queries ------------------------------------------------------------------------------
