@@ -299,6 +299,12 @@ class Replay:
             if self.counts.skipped:
                 reason, n = self.counts.skipped.most_common(1)[0]
                 raise TransformError(f"every sensor frame was skipped ({n} x): {reason}")
+            damaged = {k: v for k, v in not_decoded.items() if any(k.endswith(" " + t) for t in sel.sensor_topics)}
+            if damaged:
+                reason, n = max(damaged.items(), key=lambda kv: kv[1])
+                raise InputError(f"no usable sensor frame in {', '.join(str(p) for p in req.logs)}: {reason} "
+                                 f"({n} x, every one); the log is damaged there, or its message definitions "
+                                 f"are wrong: check it with `ltmap info`")  # fmt: skip
             raise InputError(
                 f"no sensor frames in {', '.join(str(p) for p in req.logs)} on topics "
                 f"{', '.join(sel.sensor_topics) or '(none)'}; check the topics with `ltmap info`"
