@@ -4,10 +4,19 @@
 OctoMap's own occupancy test (p >= 0.5) agrees with ltmap's (LT >= occupied_thresh, 0.65):
 ``logodds = logit(clip(LT, 0.001, 0.999)) - logit(occupied_thresh)``. ``LT`` is recovered as
 ``sigmoid(logodds + logit(occupied_thresh))`` (to within the clip) when an ``.ot`` is resumed.
+Besides them it holds the free space: every voxel the sensor map O has seen free (log-odds < 0)
+that LT does not hold, at the log-odds of LT = 0 (``lt_to_ot_logodds(0)`` = logit(0.001) -
+logit(0.65), about -7.53). So OctoMap, ``ltmap diff`` and ``ltmap plan`` tell free (seen, nothing
+there, e.g. where an object was seen gone) from unknown (absent from the tree). Free space is most
+of a snapshot (the house sample ends with 233,418 free voxels beside 1,162 with LT > 0); the writer
+prunes it as OctoMap does (see ``io.ot``). A voxel whose LT is being forgotten (0 < LT < 0.65)
+has log-odds < 0: free for OctoMap too. ``--resume`` keeps only LT > 1.5e-3, so the free leaves
+seed nothing: resuming from an ``.ot`` gives the LT a state file gives.
 
 ``state_*.npz``: the map core's exact arrays (O, ST, LT and clocks). ``--resume`` carries LT only
 (day 2 starts with a fresh sensor map and short-term layer), from a state file, an ``.ot``, or an
-output folder (its ``snapshots/state_final.npz``).
+output folder (its ``snapshots/state_final.npz``). ``diff`` and ``plan`` read a state file as the
+``.ot`` written beside it (``read_snapshot_voxels``).
 """
 
 from __future__ import annotations
@@ -53,9 +62,26 @@ def long_term_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
     return keys, D.get("lt", keys)
 
 
+def snapshot_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
+    """(keys (N, 3), OctoMap log-odds (N,) float32) of what a ``.ot`` snapshot holds: every voxel
+    with LT > 0 (log-odds from its LT), then every voxel the sensor map O has seen free (log-odds
+    < 0) and LT does not hold, at the log-odds of LT = 0 (``lt_to_ot_logodds(0)``)."""
+    thr = lmap.cfg.projection.occupied_thresh
+    keys, lt = long_term_voxels(lmap)
+    O = lmap.O
+    free = O.voxels_where((O.channel("logodds") < 0) & (O.channel("stamp") > 0))
+    if len(free):
+        free = free[lmap.D.get("lt", free) <= 0]
+    logodds = np.empty(len(keys) + len(free), dtype=np.float32)
+    logodds[: len(keys)] = lt_to_ot_logodds(lt, thr)
+    logodds[len(keys) :] = lt_to_ot_logodds(0.0, thr)
+    return np.concatenate([keys, free]), logodds
+
+
 def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
-    """(keys, OctoMap log-odds, resolution) of a ``.ot`` or of a state ``.npz`` (its LT voxels
-    converted as the ``.ot`` written beside it: occupied iff log-odds > 0)."""
+    """(keys, OctoMap log-odds, resolution) of a ``.ot`` or of a state ``.npz`` (the voxels and
+    log-odds of the ``.ot`` written beside it, see ``snapshot_voxels``: occupied iff log-odds > 0,
+    free where LT < occupied_thresh or O saw free space, unknown where absent)."""
     if Path(path).suffix.lower() == ".ot":
         from .io.ot import read_ot
 
@@ -65,8 +91,8 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     arrays, _meta = read_state(path)
     lmap = LayeredMap(MapConfig(resolution=float(arrays["resolution"])))
     lmap.load_state_arrays(arrays)
-    keys, lt = long_term_voxels(lmap)
-    return keys, lt_to_ot_logodds(lt, lmap.cfg.projection.occupied_thresh), lmap.resolution
+    keys, logodds = snapshot_voxels(lmap)
+    return keys, logodds, lmap.resolution
 
 
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
@@ -76,11 +102,11 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
     thr = lmap.cfg.projection.occupied_thresh
-    keys, lt = long_term_voxels(lmap)
     out = {}
     ot_path = folder / f"long_term_{name}.ot"
-    write_ot(ot_path, keys, lt_to_ot_logodds(lt, thr), lmap.resolution)
+    write_ot(ot_path, *snapshot_voxels(lmap), lmap.resolution)
     out["ot"] = str(ot_path)
+    keys, lt = long_term_voxels(lmap)
     occ = lt >= thr
     ply_path = folder / f"long_term_{name}.ply"
     # no occupied voxel (the first snapshots of a run) is a valid PLY with 0 vertices: every

@@ -502,3 +502,42 @@ def test_png_that_is_a_folder_or_under_a_file_is_named_as_given(tmp_path, cmd):
         assert r.output.startswith(f"ltmap: error: {want}") and r.output.count("\n") == 1, r.output
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.pgm", "a.yaml", "afile", "pics"]
     assert not any((tmp_path / "pics").iterdir())
+
+
+def test_ot_snapshots_of_a_replay_diff_and_plan_like_their_state_files(tmp_path):
+    """The reviewer's case: 01_static_object replayed with snapshots every 10 s. The box enters LT
+    near 18 s and is seen gone at 23 s; the .ot pair now holds the free space the box leaves, so
+    diff counts it removed exactly as the state .npz pair does, and plan starts in known space."""
+    from pathlib import Path
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs/scenarios/01_static_object/log.mcap"
+    out = tmp_path / "s1"
+    args = ["replay", str(log), "-o", str(out), "--snapshot-every", "10", "-q", "--no-plots"]
+    r = CliRunner().invoke(cli, args)
+    assert r.exit_code == 0, r.output
+    s = out / "snapshots"
+    box = (3.5 - 0.35, 3.5 + 0.35, 2.5 - 0.35, 2.5 + 0.35)  # 0.4 m box at 20 degrees, with a margin
+    for t in ("t000010.0s", "t000020.0s"):
+        ot = json.loads(run(s / f"long_term_{t}.ot", s / "long_term_final.ot", "--json").output)
+        npz = json.loads(run(s / f"state_{t}.npz", s / "state_final.npz", "--json").output)
+        assert ot["cells"] == npz["cells"], t
+        if t == "t000020.0s":
+            assert ot["cells"]["removed"] >= 12
+            # the removed cells are the box's (and a few wall-edge cells whose LT is being forgotten)
+            g = load_grid(s / f"long_term_{t}.ot")
+            f = load_grid(s / "long_term_final.ot")
+            box_cells = 0
+            for row, col in zip(*np.nonzero(g.data == 100)):
+                x, y = cell_to_world(g, row, col)
+                fr, fc = world_to_cell(f, x, y)
+                if box[0] < x < box[1] and box[2] < y < box[3]:
+                    assert f.data[fr, fc] == 0, (x, y)  # occupied at 20 s, free at the end
+                    box_cells += 1
+            assert box_cells >= 10
+    plans = []
+    for f in ("long_term_final.ot", "state_final.npz"):
+        r = CliRunner().invoke(cli, ["plan", str(s / f), "--start", "2.5,2.5", "--goal", "6,1.5", "--json"])
+        assert r.exit_code == 0, r.output  # was: start is in an unknown cell, on the .ot
+        plans.append(json.loads(r.output))
+    assert plans[0]["path"] == plans[1]["path"]
+    assert plans[0]["length_m"] == pytest.approx(plans[1]["length_m"])

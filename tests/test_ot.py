@@ -189,3 +189,114 @@ def test_read_errors(tmp_path):
     write_ot(cut, np.array([[0, 0, 0], [5, 5, 5]]), np.array([1.0, 2.0], np.float32), 0.1)
     with pytest.raises(MapFileError, match="expands to 2 voxels, more than the 1"):
         read_ot(cut, max_voxels=1)
+
+
+# --------------------------------------------------------------------------------------------
+# pruning: eight sibling leaves with bitwise equal log-odds are one leaf at their parent
+
+
+def _reference_prune(keys, logodds):
+    """OctoMap's prune() done the slow way: {(depth, i, j, k of the leaf's first voxel): bits}."""
+    leaves = {(0, *map(int, k)): int(b) for k, b in zip(keys, logodds.astype(np.float32).view(np.uint32))}
+    for level in range(15):  # the root (depth 0) is never a leaf
+        groups = {}
+        for (lv, i, j, k), b in leaves.items():
+            if lv == level:
+                groups.setdefault((i >> (level + 1), j >> (level + 1), k >> (level + 1)), []).append(b)
+        for (pi, pj, pk), bits in groups.items():
+            if len(bits) == 8 and len(set(bits)) == 1:
+                s = level + 1
+                for c in range(8):
+                    ci, cj, ck = ((pi << 1) | (c & 1)) << level, ((pj << 1) | ((c >> 1) & 1)) << level, (
+                        (pk << 1) | (c >> 2)) << level  # fmt: skip
+                    del leaves[(level, ci, cj, ck)]
+                leaves[(s, pi << s, pj << s, pk << s)] = bits[0]
+    return {(16 - lv, i, j, k): b for (lv, i, j, k), b in leaves.items()}
+
+
+def _pruned_voxel_set():
+    """Free space with obstacles in it, as a long-term snapshot holds: big equal-valued regions
+    (aligned and not, across 0), one occupied voxel inside an aligned block, a block whose
+    values differ by one ulp or by the sign of zero, and random scattered voxels."""
+    free = np.float32(-7.5261)
+    rng = np.random.default_rng(3)
+
+    def box(lo, n):
+        g = np.stack(np.meshgrid(*(np.arange(a, a + m) for a, m in zip(lo, n)), indexing="ij"), -1)
+        return g.reshape(-1, 3)
+
+    parts = [
+        (box((-32, -32, 0), (48, 32, 32)), free),  # aligned: one leaf at depth 11, four at 12
+        (box((5, 3, 20), (13, 9, 6)), free),  # not aligned: some 2^3 nodes at most
+        (box((40, 40, 40), (8, 8, 8)), np.float32(3.5)),  # one occupied depth-13 leaf
+    ]
+    keys = np.concatenate([p for p, _ in parts])
+    vals = np.concatenate([np.full(len(p), v, np.float32) for p, v in parts])
+    odd = box((-64, 0, 0), (8, 8, 8))  # free but voxel (-64, 0, 0) is occupied: 7 siblings stay
+    odd_v = np.full(len(odd), free, np.float32)
+    odd_v[0] = 2.0
+    ulp = box((64, 0, 0), (2, 2, 2))  # one ulp apart: not equal
+    ulp_v = np.full(8, free, np.float32)
+    ulp_v[3] = np.nextafter(free, np.float32(0))
+    zeros = box((66, 0, 0), (2, 2, 2))  # +0.0 and -0.0: equal as numbers, not bitwise
+    zeros_v = np.zeros(8, np.float32)
+    zeros_v[5] = -0.0
+    scattered = rng.integers(-500, 500, size=(300, 3)) + [0, 0, 200]
+    keys = np.concatenate([keys, odd, ulp, zeros, scattered])
+    vals = np.concatenate([vals, odd_v, ulp_v, zeros_v, rng.uniform(-3, 3, 300).astype(np.float32)])
+    keys, first = np.unique(keys, axis=0, return_index=True)
+    return keys, vals[first]
+
+
+def test_pruned_file_is_the_same_voxels_for_octomap_and_for_us(tmp_path):
+    keys, logodds = _pruned_voxel_set()
+    expected = _reference_prune(keys, logodds)
+    assert min(d for d, *_ in expected) == 11 and len(expected) < len(keys) / 20
+    pruned, plain = tmp_path / "pruned.ot", tmp_path / "plain.ot"
+    write_ot(pruned, keys, logodds, 0.05)
+    write_ot(plain, keys, logodds, 0.05, prune=False)
+    assert pruned.stat().st_size < plain.stat().st_size / 10
+    ours = _as_dict(keys, logodds)
+    occupied = {k for k, v in ours.items() if v >= 0}  # OctoMap's test (p >= 0.5): its own free / occupied
+    for path, n_leaves in ((pruned, len(expected)), (plain, len(keys))):
+        tree = pyoctomap.OcTree(0.1).read(str(path))
+        assert tree.size() == int(path.read_bytes().split(b"\nsize ")[1].split(b"\n")[0])
+        assert tree.getNumLeafNodes() == n_leaves
+        leaves = _octomap_leaves(tree, 0.05)  # pruned leaves expanded into their voxels
+        assert leaves.keys() == ours.keys()
+        assert all(np.float32(leaves[k]).tobytes() == np.float32(v).tobytes() for k, v in ours.items())
+        theirs_occ = set()
+        for it in tree.begin_leafs():
+            if tree.isNodeOccupied(it):
+                n = int(round(it.getSize() / 0.05))
+                base = [int(np.floor((c - it.getSize() / 2) / 0.05 + 0.5)) for c in it.getCoordinate()]
+                theirs_occ |= {(base[0] + a, base[1] + b, base[2] + c) for a in range(n) for b in range(n)
+                               for c in range(n)}  # fmt: skip
+        assert theirs_occ == occupied
+        assert ours.keys() - theirs_occ == {k for k, v in ours.items() if v < 0}  # the free voxels
+    # the leaves OctoMap sees are OctoMap's prune() of the voxels
+    tree = pyoctomap.OcTree(0.1).read(str(pruned))
+    seen = {}
+    for it in tree.begin_leafs():
+        base = tuple(int(np.floor((c - it.getSize() / 2) / 0.05 + 0.5)) for c in it.getCoordinate())
+        seen[(it.getDepth(), *base)] = int(np.float32(it.current_node.getLogOdds()).view(np.uint32))
+    assert seen == expected
+    # and read_ot expands them back exactly
+    back_keys, back_logodds, res = read_ot(pruned)
+    assert res == 0.05 and len(back_keys) == len(keys)
+    order, back = np.lexsort(keys.T[::-1]), np.lexsort(back_keys.T[::-1])
+    np.testing.assert_array_equal(back_keys[back], keys[order])
+    assert back_logodds[back].tobytes() == logodds[order].tobytes()
+
+
+def test_prune_merges_only_bitwise_equal_siblings():
+    cube = np.stack(np.meshgrid(np.arange(2), np.arange(2), np.arange(2), indexing="ij"), -1).reshape(-1, 3)
+
+    def size(values):
+        return int(ot_bytes(cube, np.asarray(values, np.float32), 0.1).split(b"\nsize ")[1].split(b"\n")[0])
+
+    assert size([-2.0] * 8) == 16  # root .. one leaf at depth 15
+    assert size([-2.0] * 7 + [np.nextafter(np.float32(-2.0), np.float32(0))]) == 16 + 8  # root .. 8 leaves
+    assert size([0.0] * 7 + [-0.0]) == 16 + 8
+    unpruned = ot_bytes(cube, np.full(8, -2.0, np.float32), 0.1, prune=False)
+    assert b"\nsize 24\n" in unpruned

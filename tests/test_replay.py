@@ -248,6 +248,137 @@ def test_resume_from_an_ot_snapshot_restores_the_long_term_map(tmp_path):
     assert occupied_cells(out2 / "map.yaml") == occupied_cells(out / "map.yaml")
 
 
+def pillar_removed_run(tmp_path: Path) -> Path:
+    """The pillar stands 17 s (enters LT near 15 s), then is gone 13 s (seen free, LT falls from
+    about 20 s to 23 s); snapshots every 3 s: t18 holds it in LT, t21 mid-fall, final without it."""
+    a = write_log(tmp_path / "a.mcap", "mcap-ros2", room_messages(0.0, 17.0, pillar=True))
+    b = write_log(tmp_path / "b.mcap", "mcap-ros2", room_messages(17.0, 13.0, pillar=False, static_mount=True))
+    out = tmp_path / "out"
+    assert run(["replay", str(a), str(b), "-o", str(out), "-q", "--snapshot-every", "3"]).exit_code == 0
+    return out / "snapshots"
+
+
+def _sorted_voxels(keys, logodds):
+    order = np.lexsort(np.asarray(keys).T[::-1])
+    return np.asarray(keys)[order], np.asarray(logodds, np.float32)[order]
+
+
+def test_ot_snapshot_holds_free_space_so_diff_sees_the_removal_the_state_files_see(tmp_path):
+    from ltmap_cli.io.state import read_state
+
+    snaps = pillar_removed_run(tmp_path)
+
+    def lt_columns(name):
+        from ltmap_cli.core.config import MapConfig
+        from ltmap_cli.core.layers import LayeredMap
+
+        m = LayeredMap(MapConfig())
+        m.load_state_arrays(read_state(snaps / f"state_{name}.npz")[0])
+        return {(int(k[0]), int(k[1])) for k in m.occupied_keys("LT") if 1 <= k[2] <= 29}  # band [0.05, 1.5)
+
+    with_pillar, without = lt_columns("t000018.0s"), lt_columns("final")
+    gone = with_pillar - without
+    assert without < with_pillar and len(gone) >= 3  # the pillar's seen face
+    reps = {}
+    for kind, a, b in (("ot", "long_term_t000018.0s.ot", "long_term_final.ot"),
+                       ("npz", "state_t000018.0s.npz", "state_final.npz")):  # fmt: skip
+        for extra in ((), ("--3d",)):
+            r = CliRunner().invoke(cli, ["diff", str(snaps / a), str(snaps / b), "--json", *extra])
+            assert r.exit_code == 1, r.output
+            rep = json.loads(r.output)
+            reps[kind, extra] = rep["voxels" if extra else "cells"]
+    assert reps["ot", ()] == reps["npz", ()]
+    assert reps["ot", ()]["removed"] == len(gone) and reps["ot", ()]["added"] == 0  # not "unknown-changed"
+    assert reps["ot", ()]["unknown_changed"] == 0
+    assert reps["ot", ("--3d",)] == reps["npz", ("--3d",)]
+    assert reps["ot", ("--3d",)]["removed"] == len(gone)
+
+
+def test_plan_on_an_ot_snapshot_takes_the_path_of_the_state_file(tmp_path):
+    snaps = pillar_removed_run(tmp_path)
+    outs = []
+    for f in ("long_term_final.ot", "state_final.npz"):
+        # to where the pillar stood: free once it was seen gone
+        r = CliRunner().invoke(cli, ["plan", str(snaps / f), "--start", "1.2,0.5", "--goal", "-1.0,-1.0", "--json"])
+        assert r.exit_code == 0, r.output
+        outs.append(json.loads(r.output))
+    assert outs[0]["path"] == outs[1]["path"] and outs[0]["length_m"] == outs[1]["length_m"] > 2.5
+    for f in ("long_term_t000018.0s.ot", "state_t000018.0s.npz"):  # while it stood, neither plans into it
+        r = CliRunner().invoke(cli, ["plan", str(snaps / f), "--start", "1.2,0.5", "--goal", "-1.0,-1.0"])
+        assert r.exit_code == 2 and "goal (-1, -1) is within the robot radius of an obstacle" in r.output
+
+
+def test_ot_snapshot_is_long_term_plus_free_space_and_octomap_reads_it(tmp_path):
+    pyoctomap = pytest.importorskip("pyoctomap")
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.io.ot import read_ot
+    from ltmap_cli.io.state import read_state
+    from ltmap_cli.snapshots import lt_to_ot_logodds, read_snapshot_voxels
+
+    snaps = pillar_removed_run(tmp_path)
+    for name in ("t000018.0s", "t000021.0s", "final"):
+        m = LayeredMap(MapConfig())
+        m.load_state_arrays(read_state(snaps / f"state_{name}.npz")[0])
+        lt_keys = m.D.voxels_where(m.D.channel("lt") > 0)
+        lt = m.D.get("lt", lt_keys)
+        o_free = m.O.voxels_where(m.O.channel("logodds") < 0)
+        lt_set = {tuple(k) for k in lt_keys.tolist()}
+        free_only = {tuple(k) for k in o_free.tolist()} - lt_set
+        assert len(free_only) > 10 * len(lt_set)
+        ot = snaps / f"long_term_{name}.ot"
+        keys, logodds, res = read_ot(ot)
+        assert res == R and len(keys) == len(lt_set) + len(free_only)
+        got = dict(zip(map(tuple, keys.tolist()), logodds.tolist()))
+        want = dict(zip(map(tuple, lt_keys.tolist()), lt_to_ot_logodds(lt, 0.65).tolist()))
+        want.update(dict.fromkeys(free_only, float(lt_to_ot_logodds(0.0, 0.65))))
+        assert got == want
+        # a state .npz reads as the .ot written beside it, array for array
+        nk, nl, nres = read_snapshot_voxels(snaps / f"state_{name}.npz")
+        ok_, ol = _sorted_voxels(keys, logodds)
+        nk_, nl = _sorted_voxels(nk, nl)
+        assert nres == res
+        np.testing.assert_array_equal(nk_, ok_)
+        assert nl.tobytes() == ol.tobytes()
+        # OctoMap: the same occupied and free voxels (one laser plane: nothing here to prune)
+        tree = pyoctomap.OcTree(0.1).read(str(ot))
+        occ, free = set(), set()
+        for it in tree.begin_leafs():
+            n = int(round(it.getSize() / R))
+            base = [int(np.floor((c - it.getSize() / 2) / R + 0.5)) for c in it.getCoordinate()]
+            cube = {(base[0] + a, base[1] + b, base[2] + c) for a in range(n) for b in range(n) for c in range(n)}
+            (occ if tree.isNodeOccupied(it) else free).update(cube)
+        assert occ == {k for k, v in want.items() if v > 0}
+        assert free == {k for k, v in want.items() if v < 0}
+        if name == "t000021.0s":  # the pillar mid-fall: LT between 0 and 0.65 is free for OctoMap too
+            assert any(0 < v < 0.65 for v in lt.tolist())
+
+
+def test_resume_from_an_ot_snapshot_equals_resume_from_its_state_file(tmp_path):
+    """The free leaves seed nothing: LT after --resume is the same voxels and values from the .ot
+    as from the .npz (t21: the pillar's LT mid-fall, 0 < LT < 1)."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.io.ot import read_ot
+    from ltmap_cli.snapshots import load_resume
+
+    snaps = pillar_removed_run(tmp_path)
+    for name in ("t000021.0s", "final"):
+        seeded = []
+        for f in (f"long_term_{name}.ot", f"state_{name}.npz"):
+            m = LayeredMap(MapConfig())
+            info = load_resume(m, snaps / f)
+            keys = m.D.voxels_where(m.D.channel("lt") > 0)
+            seeded.append((info["long_term_voxels"], *_sorted_voxels(keys, m.D.get("lt", keys))))
+        (n_ot, k_ot, v_ot), (n_npz, k_npz, v_npz) = seeded
+        assert n_ot == n_npz == len(k_ot) > 150
+        np.testing.assert_array_equal(k_ot, k_npz)
+        assert v_ot.tobytes() == v_npz.tobytes()
+        assert len(read_ot(snaps / f"long_term_{name}.ot")[0]) > 10 * n_ot  # the free leaves it skipped
+        if name == "t000021.0s":
+            assert ((v_ot > 0) & (v_ot < 1)).sum() >= 3
+
+
 # ------------------------------------------------------------------------------ bad input
 
 

@@ -117,7 +117,7 @@ def load_grid(path: str | Path, what: str = "map", z_band: tuple[float, float] =
     """Read a map argument as a GridMap: map_server YAML, replay output folder, .ot snapshot
     (projected over ``z_band``: occupied where a voxel with log-odds > 0 meets the band, free
     where only voxels with log-odds <= 0 do, unknown elsewhere) or exact-state .npz snapshot
-    (its long-term layer, see ``project_state``)."""
+    (projected as the .ot written beside it, see ``project_state``)."""
     p = resolve_map_path(path, what)
     suffix = p.suffix.lower()
     if suffix in (".yaml", ".yml"):
@@ -135,19 +135,18 @@ def load_grid(path: str | Path, what: str = "map", z_band: tuple[float, float] =
 
 
 def project_state(path: Path, z_band: tuple[float, float] = Z_BAND) -> GridMap:
-    """P of an exact-state snapshot (``snapshots/state_*.npz``): its long-term layer over
-    ``z_band``, free where its sensor map saw free space. A state holds no static layer, so this
-    is the replay's ``long_term`` map, not ``map`` (which adds S)."""
-    from ..core.config import MapConfig
-    from ..core.layers import LayeredMap
-    from ..core.projection import project
-    from ..io.state import read_state
+    """An exact-state snapshot (``snapshots/state_*.npz``) projected as the ``.ot`` written beside
+    it: the same voxels and log-odds (``snapshots.read_snapshot_voxels``: LT > 0, and free where
+    its sensor map saw free space) through ``project_voxels``, so ``plan`` and ``diff`` give the
+    same answer on either file. A state holds no static layer, so this is the replay's
+    ``long_term`` map, not ``map``; it can differ from ``long_term.pgm`` in a column whose
+    long-term voxels are being forgotten (0 < LT < occupied_thresh: seen free, LT falling) while
+    no band voxel is free in O at that moment: free here and in the ``.ot`` (log-odds < 0),
+    unknown in ``long_term.pgm``."""
+    from ..snapshots import read_snapshot_voxels
 
-    arrays, _meta = read_state(path)
-    lmap = LayeredMap(MapConfig(resolution=float(arrays["resolution"])))
-    lmap.load_state_arrays(arrays)
-    p = project(lmap, z_min=z_band[0], z_max=z_band[1], use_static=False)
-    return GridMap(p.data, p.resolution, p.origin)
+    keys, logodds, res = read_snapshot_voxels(path)
+    return project_voxels(keys, logodds, res, z_band)
 
 
 def band_mask(k: np.ndarray, resolution: float, z_band: tuple[float, float]) -> np.ndarray:

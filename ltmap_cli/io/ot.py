@@ -16,11 +16,13 @@ File layout (``AbstractOcTree::write`` + ``OcTreeBaseImpl::writeNodesRecurs``)::
     <nodes in pre-order: float32 log-odds (little endian), uint8 child bitmask, then children>
 
 An inner node holds the max of its children's log-odds (``updateOccupancyChildren``). The writer
-does not prune (eight equal leaves stay eight leaves): OctoMap reads it all the same. The reader
-expands pruned leaves of files written by OctoMap into their voxels.
+prunes as OctoMap's ``prune()`` does: eight sibling leaves whose float32 log-odds are bitwise equal
+become one leaf at their parent, recursively up to depth 1 (a snapshot's free space, all at one
+log-odds, shrinks 5x on the house sample). OctoMap reads pruned trees natively; the reader
+expands a pruned leaf into its voxels, so a written file reads back voxel for voxel.
 
-The tree walk is a numba kernel over the leaves sorted in Morton order (no Python recursion), so
-10^6 voxels write in well under a second.
+Pruning and the tree walk are numba kernels over the voxels sorted in Morton order (a stack, no
+Python recursion): 5.9 million voxels write in about 0.35 s.
 """
 
 from __future__ import annotations
@@ -50,29 +52,72 @@ _OK, _TRUNCATED, _CORRUPT = 0, 1, 2
 # kernels (plain Python here, compiled with numba on first use)
 
 
-def _spread_bits(v: np.ndarray) -> np.ndarray:
-    """Put bit b of each 16-bit value at bit 3b of an int64."""
-    v = v.astype(np.int64) & 0xFFFF
-    v = (v | (v << 32)) & 0x001F_0000_0000_FFFF
-    v = (v | (v << 16)) & 0x001F_0000_FF00_00FF
-    v = (v | (v << 8)) & 0x100F_00F0_0F00_F00F
-    v = (v | (v << 4)) & 0x10C3_0C30_C30C_30C3
-    v = (v | (v << 2)) & 0x1249_2492_4924_9249
-    return v
-
-
 def morton_codes(octo_keys: np.ndarray) -> np.ndarray:
     """48-bit Morton codes (int64) of OctoMap keys (N, 3) in 0..65535: bits 3b, 3b+1, 3b+2 are
     bit b of kx, ky, kz, so ``(code >> 3b) & 7`` is OctoMap's child index at level b."""
-    return _spread_bits(octo_keys[:, 0]) | (_spread_bits(octo_keys[:, 1]) << 1) | (_spread_bits(octo_keys[:, 2]) << 2)
+    keys = np.ascontiguousarray(np.asarray(octo_keys, dtype=np.int64).reshape(-1, 3))
+    out = np.empty(len(keys), dtype=np.int64)
+    _kernels()[0](keys, 0, out)
+    return out
 
 
-def _count_nodes(codes):
-    """Number of tree nodes above sorted leaf codes, or -1 if a code repeats."""
+def _morton(keys, offset, out):
+    """``out[n]`` = Morton code of ``keys[n] + offset``: bit b of each axis spread to bit 3b."""
+    for n in range(keys.shape[0]):
+        code = np.int64(0)
+        for a in range(3):
+            v = (keys[n, a] + offset) & 0xFFFF
+            v = (v | (v << 32)) & 0x001F_0000_0000_FFFF
+            v = (v | (v << 16)) & 0x001F_0000_FF00_00FF
+            v = (v | (v << 8)) & 0x100F_00F0_0F00_F00F
+            v = (v | (v << 4)) & 0x10C3_0C30_C30C_30C3
+            v = (v | (v << 2)) & 0x1249_2492_4924_9249
+            code |= v << a
+        out[n] = code
+
+
+def _prune(codes, bits, out_codes, out_levels, out_bits):
+    """OctoMap's ``prune()`` over sorted unique voxel codes (depth 16) whose float32 values are
+    given as their bits: eight sibling leaves with bitwise equal values become one leaf at their
+    parent, recursively. Writes the leaves (Morton code of their first voxel, level = 16 - depth,
+    value bits) in Morton order and returns their number. A stack: a leaf is pushed, then the top
+    eight entries are merged while they are the eight children of one node with one value (in
+    Morton order siblings are adjacent, the last one is child 7). Leaves stop at depth 1."""
+    top = 0
+    for i in range(codes.shape[0]):
+        out_codes[top] = codes[i]
+        out_levels[top] = 0
+        out_bits[top] = bits[i]
+        top += 1
+        while top >= 8:
+            lv = out_levels[top - 1]
+            if lv >= TREE_DEPTH - 1 or ((out_codes[top - 1] >> (3 * lv)) & 7) != 7:
+                break
+            shift = 3 * (lv + 1)
+            parent = out_codes[top - 1] >> shift
+            b = out_bits[top - 1]
+            same = True
+            for j in range(top - 8, top - 1):
+                if out_levels[j] != lv or (out_codes[j] >> shift) != parent or out_bits[j] != b:
+                    same = False
+                    break
+            if not same:
+                break
+            top -= 8
+            out_codes[top] = parent << shift
+            out_levels[top] = lv + 1
+            out_bits[top] = b
+            top += 1
+    return top
+
+
+def _count_nodes(codes, levels):
+    """Number of tree nodes above sorted leaves (code of the first voxel, level = 16 - depth), or
+    -1 if two leaves overlap (a voxel given twice)."""
     n = codes.shape[0]
     if n == 0:
         return 0
-    total = TREE_DEPTH + 1
+    total = TREE_DEPTH - levels[0] + 1
     for i in range(1, n):
         diff = codes[i] ^ codes[i - 1]
         if diff == 0:
@@ -80,20 +125,26 @@ def _count_nodes(codes):
         level = TREE_DEPTH - 1
         while (diff >> (3 * level)) == 0:
             level -= 1
-        total += level + 1  # new nodes at depths 16 - level .. 16
+        first_new = TREE_DEPTH - level  # depth of the first node not shared with the previous leaf
+        depth = TREE_DEPTH - levels[i]
+        if first_new > depth or first_new > TREE_DEPTH - levels[i - 1]:
+            return -1  # one leaf inside the other
+        total += depth - first_new + 1  # new nodes at depths first_new .. depth
     return total
 
 
-def _emit_preorder(codes, values, out_values, out_masks):
-    """Pre-order nodes of the tree whose leaves (depth 16) are ``codes`` (sorted, unique):
-    value (leaf: its own; inner: max of its children) and child bitmask."""
+def _emit_preorder(codes, levels, values, out_values, out_masks):
+    """Pre-order nodes of the tree whose leaves are ``codes`` at depths 16 - ``levels`` (sorted,
+    disjoint): value (leaf: its own; inner: max of its children) and child bitmask."""
     slot = np.zeros(TREE_DEPTH + 1, dtype=np.int64)  # output index of the open node per depth
     maxv = np.zeros(TREE_DEPTH + 1, dtype=np.float32)
     idx = 0
     n = codes.shape[0]
+    prev_depth = 0
     for i in range(n):
         code = codes[i]
         v = values[i]
+        depth = TREE_DEPTH - np.int64(levels[i])
         first_new = 0
         if i > 0:
             diff = code ^ codes[i - 1]
@@ -101,22 +152,23 @@ def _emit_preorder(codes, values, out_values, out_masks):
             while (diff >> (3 * level)) == 0:
                 level -= 1
             first_new = TREE_DEPTH - level
-            for d in range(first_new, TREE_DEPTH):  # close the previous leaf's own branch
+            for d in range(first_new, prev_depth):  # close the previous leaf's own branch
                 out_values[slot[d]] = maxv[d]
-        for d in range(first_new, TREE_DEPTH + 1):
+        for d in range(first_new, depth + 1):
             slot[d] = idx
             out_masks[idx] = 0
             maxv[d] = v
             idx += 1
-        out_values[slot[TREE_DEPTH]] = v
-        for d in range(max(first_new - 1, 0), TREE_DEPTH):
+        out_values[slot[depth]] = v
+        for d in range(max(first_new - 1, 0), depth):
             child = (code >> (3 * (TREE_DEPTH - 1 - d))) & 7
             out_masks[slot[d]] = out_masks[slot[d]] | (1 << child)
         for d in range(first_new):
             if v > maxv[d]:
                 maxv[d] = v
+        prev_depth = depth
     if n > 0:
-        for d in range(TREE_DEPTH):
+        for d in range(prev_depth):
             out_values[slot[d]] = maxv[d]
     return idx
 
@@ -195,11 +247,7 @@ def _walk(masks, values, occupied_only, fill, out_keys, out_values):
 def _kernels():
     import numba
 
-    return (
-        numba.njit(cache=True)(_count_nodes),
-        numba.njit(cache=True)(_emit_preorder),
-        numba.njit(cache=True)(_walk),
-    )
+    return tuple(numba.njit(cache=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder, _walk))
 
 
 # --------------------------------------------------------------------------------------------
@@ -213,8 +261,12 @@ def _header(num_nodes: int, resolution: float) -> bytes:
     )
 
 
-def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float) -> bytes:
-    """The ``.ot`` file content for voxels ``keys`` (N, 3) with log-odds ``logodds`` (N,)."""
+def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float, prune: bool = True) -> bytes:
+    """The ``.ot`` file content for voxels ``keys`` (N, 3) with log-odds ``logodds`` (N,).
+
+    With ``prune`` (the default) eight sibling leaves with bitwise equal log-odds are stored as
+    one leaf at their parent, recursively, as OctoMap's ``prune()`` does; ``prune=False`` keeps
+    one leaf per voxel. Both describe the same voxels."""
     keys = np.asarray(keys)
     logodds = np.asarray(logodds, dtype=np.float32)
     if keys.ndim != 2 or keys.shape[1] != 3 or not np.issubdtype(keys.dtype, np.integer):
@@ -234,29 +286,41 @@ def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float) -> bytes:
         raise ValueError(
             f"write_ot: voxel indices must be in [-32768, 32767] (OctoMap's 16-bit keys), got {kmin}..{kmax}"
         )
-    count_nodes, emit_preorder, _ = _kernels()
-    codes = morton_codes(keys.astype(np.int64) + TREE_MAX_VAL)  # int64, < 2**48
+    morton, prune_leaves, count_nodes, emit_preorder, _ = _kernels()
+    codes = np.empty(n, dtype=np.int64)
+    morton(np.ascontiguousarray(keys, dtype=np.int64), TREE_MAX_VAL, codes)  # OctoMap keys' codes, < 2**48
     order = np.argsort(codes, kind="stable")
     codes = codes[order]
     values = logodds[order]
-    num_nodes = count_nodes(codes)
+    if prune:
+        leaf_codes = np.empty(n, dtype=np.int64)
+        levels = np.empty(n, dtype=np.int8)
+        bits = np.empty(n, dtype=np.uint32)
+        m = prune_leaves(codes, values.view(np.uint32), leaf_codes, levels, bits)
+        codes, levels, values = leaf_codes[:m], levels[:m], bits[:m].view(np.float32)
+    else:
+        levels = np.zeros(n, dtype=np.int8)
+    num_nodes = count_nodes(codes, levels)
     if num_nodes < 0:
         raise ValueError("write_ot: keys contain the same voxel twice")
     nodes = np.empty(num_nodes, dtype=NODE_DTYPE)
     out_values = np.empty(num_nodes, dtype=np.float32)
     out_masks = np.empty(num_nodes, dtype=np.uint8)
-    written = emit_preorder(codes, values, out_values, out_masks)
+    written = emit_preorder(codes, levels, values, out_values, out_masks)
     assert written == num_nodes
     nodes["value"] = out_values
     nodes["children"] = out_masks
     return _header(num_nodes, resolution) + nodes.tobytes()
 
 
-def write_ot(path: str | os.PathLike, keys: np.ndarray, logodds: np.ndarray, resolution: float) -> None:
+def write_ot(
+    path: str | os.PathLike, keys: np.ndarray, logodds: np.ndarray, resolution: float, prune: bool = True
+) -> None:
     """Write voxels ``keys`` (N, 3) int voxel indices (each in [-32768, 32767]) with
-    ``logodds`` (N,) float32 as an OctoMap ``OcTree`` ``.ot`` file, atomically. Raises
-    ValueError for bad arrays (wrong shape, duplicates, out of OctoMap's key range)."""
-    data = ot_bytes(keys, logodds, resolution)
+    ``logodds`` (N,) float32 as an OctoMap ``OcTree`` ``.ot`` file, atomically, pruned (see
+    ``ot_bytes``). Raises ValueError for bad arrays (wrong shape, duplicates, out of OctoMap's
+    key range)."""
+    data = ot_bytes(keys, logodds, resolution, prune=prune)
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
 
@@ -343,7 +407,7 @@ def read_ot(
     nodes = np.frombuffer(body, dtype=NODE_DTYPE, count=num_records)
     masks = np.ascontiguousarray(nodes["children"])
     values = np.ascontiguousarray(nodes["value"])
-    _, _, walk = _kernels()
+    walk = _kernels()[4]
     dummy_keys = np.zeros((0, 3), np.int64)
     dummy_values = np.zeros(0, np.float32)
     status, consumed, voxels = walk(masks, values, occupied_only, False, dummy_keys, dummy_values)
