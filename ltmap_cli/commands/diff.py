@@ -116,7 +116,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     "--3d",
     "three_d",
     is_flag=True,
-    help="Compare the long-term voxels of two snapshots (.ot, state .npz or replay output folders: their final state) in 3D (counts and IoU) instead of projected maps.",
+    help="Compare two long-term snapshots voxel by voxel (occupied, free as the sensors saw it, unknown) (.ot, state .npz or replay output folders: their final state) in 3D (counts and IoU) instead of projected maps.",
 )
 @click.option(
     "--z-band",
