@@ -78,6 +78,28 @@ def snapshot_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([keys, free]), logodds
 
 
+def snapshot_ot_bytes(lmap: LayeredMap) -> bytes:
+    """The ``.ot`` of ``snapshot_voxels`` (the same bytes as ``ot_bytes(*snapshot_voxels(lmap))``),
+    built block by block from the sensor map's arrays: memory for the pruned leaves only, not a
+    key per free voxel (tens of millions on a 100 m floor)."""
+    from .io.ot import blocks_ot_bytes
+
+    thr = lmap.cfg.projection.occupied_thresh
+    lt_keys, lt = long_term_voxels(lmap)
+    O = lmap.O
+    o_free = (O.channel("logodds") < 0) & (O.channel("stamp") > 0)
+    blocks = O.block_keys()
+    o_block = np.arange(len(blocks), dtype=np.int64)
+    if len(lt_keys):  # long-term voxels in blocks the sensor map never allocated (seeds, resume)
+        b, _ = O.lookup(lt_keys)
+        extra = np.unique(lt_keys[b < 0] >> 3, axis=0)
+        if len(extra):
+            blocks = np.concatenate([blocks, extra])
+            o_block = np.concatenate([o_block, np.full(len(extra), -1, dtype=np.int64)])
+    return blocks_ot_bytes(blocks, o_block, o_free, float(lt_to_ot_logodds(0.0, thr)), lt_keys,
+                           lt_to_ot_logodds(lt, thr), lmap.resolution)  # fmt: skip
+
+
 def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     """(keys, OctoMap log-odds, resolution) of a ``.ot`` or of a state ``.npz`` (the voxels and
     log-odds of the ``.ot`` written beside it, see ``snapshot_voxels``: occupied iff log-odds > 0,
@@ -97,14 +119,22 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
     """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
-    from .io.ot import write_ot
+    from .io.atomic import atomic_path
 
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
     thr = lmap.cfg.projection.occupied_thresh
     out = {}
     ot_path = folder / f"long_term_{name}.ot"
-    write_ot(ot_path, *snapshot_voxels(lmap), lmap.resolution)
+    try:
+        data = snapshot_ot_bytes(lmap)
+    except ValueError as err:
+        raise MapFileError(f"cannot write the snapshot {ot_path}: {err}; the map is too far from the fixed "
+                           f"frame's origin for OctoMap's keys (+-32768 voxels): use a nearer fixed frame "
+                           f"or a coarser --resolution") from None  # fmt: skip
+    with atomic_path(ot_path) as tmp:
+        tmp.write_bytes(data)
+    del data
     out["ot"] = str(ot_path)
     keys, lt = long_term_voxels(lmap)
     occ = lt >= thr

@@ -300,3 +300,25 @@ def test_prune_merges_only_bitwise_equal_siblings():
     assert size([0.0] * 7 + [-0.0]) == 16 + 8
     unpruned = ot_bytes(cube, np.full(8, -2.0, np.float32), 0.1, prune=False)
     assert b"\nsize 24\n" in unpruned
+
+
+def test_snapshot_built_block_by_block_is_the_voxel_list_file():
+    """write_snapshot builds the .ot from the sensor map's blocks (no key per free voxel): the
+    same bytes as ot_bytes on the voxel list, with long-term voxels that win over free space,
+    seeds in blocks the sensor map never allocated, and negative coordinates."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.io.ot import ot_bytes
+    from ltmap_cli.snapshots import snapshot_ot_bytes, snapshot_voxels
+
+    m = LayeredMap(MapConfig())
+    rng = np.random.default_rng(3)
+    for _ in range(20):  # rays from near the origin into all octants: free space and hits
+        origin = rng.uniform(-0.3, 0.3, 3) + [0, 0, 1.0]
+        m.integrate(origin, rng.uniform(-3, 3, (200, 3)) + [0, 0, 1.0], max_range=4.0)
+    free_keys = m.O.voxels_where(m.O.channel("logodds") < 0)
+    m.seed_long_term(free_keys[:50], 0.9)  # long-term where O says free: LT wins
+    m.seed_long_term(np.array([[400, -400, 3], [401, -400, 3], [-900, 5, 0]]), 1.0)  # no O block there
+    keys, logodds = snapshot_voxels(m)
+    assert len(keys) > 10_000
+    assert snapshot_ot_bytes(m) == ot_bytes(keys, logodds, m.resolution)

@@ -22,7 +22,10 @@ log-odds, shrinks 5x on the house sample). OctoMap reads pruned trees natively; 
 expands a pruned leaf into its voxels, so a written file reads back voxel for voxel.
 
 Pruning and the tree walk are numba kernels over the voxels sorted in Morton order (a stack, no
-Python recursion): 5.9 million voxels write in about 0.35 s.
+Python recursion): 5.9 million voxels write in about 0.35 s. ``blocks_ot_bytes`` builds the same
+file from blocks of 8^3 voxels (blocks in Morton order, voxels in Morton order within each),
+pruning as the leaves come, so a snapshot of a 100 m floor (23 million free voxels) needs memory
+for its pruned leaves only, not a key per voxel: 0.6 s instead of 5.2 s, and no 0.8 GB peak.
 """
 
 from __future__ import annotations
@@ -243,11 +246,68 @@ def _walk(masks, values, occupied_only, fill, out_keys, out_values):
         pos += 1
 
 
+def _block_leaves(block_codes, lt_start, lt_offs, lt_bits, o_block, o_free, free_bits, local_off, local_code,
+                  out_codes, out_levels, out_bits):
+    """Pruned leaves of blocks of 8^3 voxels given in Morton order (``block_codes``: the code of
+    each block's first voxel), without a list of voxels: voxel ``local_off[li]`` of a block (its
+    storage offset) has Morton code ``block_code | local_code[li]``, li in Morton order. A voxel's
+    value: its long-term log-odds bits if listed (``lt_offs`` / ``lt_bits`` of block n at
+    ``lt_start[n]:lt_start[n + 1]``), else ``free_bits`` if ``o_free[o_block[n], off]`` (o_block -1:
+    no sensor block), else none. Leaves go through ``_prune``'s stack as they come. Returns the
+    number of leaves, or -1 if ``out_*`` are too small."""
+    cap = out_codes.shape[0]
+    scratch = np.zeros(512, dtype=np.uint32)
+    has = np.zeros(512, dtype=np.bool_)
+    top = 0
+    for n in range(block_codes.shape[0]):
+        for j in range(lt_start[n], lt_start[n + 1]):
+            scratch[lt_offs[j]] = lt_bits[j]
+            has[lt_offs[j]] = True
+        ob = o_block[n]
+        for li in range(512):
+            off = local_off[li]
+            if has[off]:
+                b = scratch[off]
+            elif ob >= 0 and o_free[ob, off]:
+                b = free_bits
+            else:
+                continue
+            if top >= cap:
+                return -1
+            out_codes[top] = block_codes[n] | local_code[li]
+            out_levels[top] = 0
+            out_bits[top] = b
+            top += 1
+            while top >= 8:
+                lv = out_levels[top - 1]
+                if lv >= TREE_DEPTH - 1 or ((out_codes[top - 1] >> (3 * lv)) & 7) != 7:
+                    break
+                shift = 3 * (lv + 1)
+                parent = out_codes[top - 1] >> shift
+                bb = out_bits[top - 1]
+                same = True
+                for q in range(top - 8, top - 1):
+                    if out_levels[q] != lv or (out_codes[q] >> shift) != parent or out_bits[q] != bb:
+                        same = False
+                        break
+                if not same:
+                    break
+                top -= 8
+                out_codes[top] = parent << shift
+                out_levels[top] = lv + 1
+                out_bits[top] = bb
+                top += 1
+        for j in range(lt_start[n], lt_start[n + 1]):
+            has[lt_offs[j]] = False
+    return top
+
+
 @functools.lru_cache(maxsize=1)
 def _kernels():
     import numba
 
-    return tuple(numba.njit(cache=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder, _walk))
+    return tuple(numba.njit(cache=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder, _walk,
+                                                      _block_leaves))
 
 
 # --------------------------------------------------------------------------------------------
@@ -286,7 +346,7 @@ def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float, prune: bo
         raise ValueError(
             f"write_ot: voxel indices must be in [-32768, 32767] (OctoMap's 16-bit keys), got {kmin}..{kmax}"
         )
-    morton, prune_leaves, count_nodes, emit_preorder, _ = _kernels()
+    morton, prune_leaves, count_nodes, emit_preorder, _, _ = _kernels()
     codes = np.empty(n, dtype=np.int64)
     morton(np.ascontiguousarray(keys, dtype=np.int64), TREE_MAX_VAL, codes)  # OctoMap keys' codes, < 2**48
     order = np.argsort(codes, kind="stable")
@@ -300,6 +360,12 @@ def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float, prune: bo
         codes, levels, values = leaf_codes[:m], levels[:m], bits[:m].view(np.float32)
     else:
         levels = np.zeros(n, dtype=np.int8)
+    return _tree_bytes(codes, levels, values, resolution)
+
+
+def _tree_bytes(codes: np.ndarray, levels: np.ndarray, values: np.ndarray, resolution: float) -> bytes:
+    """The file for sorted, disjoint leaves (Morton code of their first voxel, level, value)."""
+    _, _, count_nodes, emit_preorder, _, _ = _kernels()
     num_nodes = count_nodes(codes, levels)
     if num_nodes < 0:
         raise ValueError("write_ot: keys contain the same voxel twice")
@@ -311,6 +377,73 @@ def ot_bytes(keys: np.ndarray, logodds: np.ndarray, resolution: float, prune: bo
     nodes["value"] = out_values
     nodes["children"] = out_masks
     return _header(num_nodes, resolution) + nodes.tobytes()
+
+
+def _local_tables() -> tuple[np.ndarray, np.ndarray]:
+    """(storage offset, Morton code) of the 512 voxels of a block, in Morton order. Storage
+    offset: ``(x << 6) | (y << 3) | z`` (core.grid.voxel_offset); Morton: bit b of x, y, z at
+    3b, 3b + 1, 3b + 2."""
+    li = np.arange(512, dtype=np.int64)
+    x = (li & 1) | ((li >> 2) & 2) | ((li >> 4) & 4)
+    y = ((li >> 1) & 1) | ((li >> 3) & 2) | ((li >> 5) & 4)
+    z = ((li >> 2) & 1) | ((li >> 4) & 2) | ((li >> 6) & 4)
+    return (x << 6) | (y << 3) | z, li
+
+
+def blocks_ot_bytes(
+    block_coords: np.ndarray,
+    o_block: np.ndarray,
+    o_free: np.ndarray,
+    free_logodds: float,
+    lt_keys: np.ndarray,
+    lt_logodds: np.ndarray,
+    resolution: float,
+) -> bytes:
+    """The pruned ``.ot`` of voxels given by blocks of 8^3, without a list of every voxel (a
+    100 m floor has tens of millions of free voxels): blocks ``block_coords`` (B, 3) in any
+    order; ``o_free`` (M, 512) bool, row ``o_block[n]`` for block n (-1: none), the voxels at
+    ``free_logodds``; ``lt_keys`` (K, 3) voxel keys with ``lt_logodds`` (K,), which win over
+    free. Every block of ``lt_keys`` must be among the blocks. The same bytes as ``ot_bytes`` on
+    the listed voxels."""
+    block_coords = np.asarray(block_coords, dtype=np.int64).reshape(-1, 3)
+    lt_keys = np.asarray(lt_keys, dtype=np.int64).reshape(-1, 3)
+    lt_logodds = np.asarray(lt_logodds, dtype=np.float32).reshape(-1)
+    if len(block_coords) == 0:
+        return _header(0, float(resolution))
+    lo, hi = int(block_coords.min()) * 8, int(block_coords.max()) * 8 + 7
+    if lo < -TREE_MAX_VAL or hi >= TREE_MAX_VAL:
+        raise ValueError(
+            f"write_ot: voxel indices must be in [-32768, 32767] (OctoMap's 16-bit keys), got {lo}..{hi}"
+        )
+    morton, _, _, _, _, block_leaves = _kernels()
+    bcodes = np.empty(len(block_coords), dtype=np.int64)
+    morton(np.ascontiguousarray(block_coords * 8), TREE_MAX_VAL, bcodes)
+    order = np.argsort(bcodes, kind="stable")
+    bcodes = bcodes[order]
+    o_block = np.asarray(o_block, dtype=np.int64)[order]
+    # long-term voxels grouped by block, in the blocks' order
+    lt_codes = np.empty(len(lt_keys), dtype=np.int64)
+    morton(np.ascontiguousarray((lt_keys >> 3) * 8), TREE_MAX_VAL, lt_codes)
+    pos = np.searchsorted(bcodes, lt_codes)
+    if len(lt_keys) and (pos.max() >= len(bcodes) or not np.array_equal(bcodes[pos], lt_codes)):
+        raise ValueError("blocks_ot_bytes: a long-term voxel lies outside the blocks given")
+    lt_offs = ((lt_keys[:, 0] & 7) << 6) | ((lt_keys[:, 1] & 7) << 3) | (lt_keys[:, 2] & 7)
+    by = np.argsort(pos, kind="stable")
+    lt_start = np.searchsorted(pos[by], np.arange(len(bcodes) + 1))
+    local_off, local_code = _local_tables()
+    free_bits = np.array([free_logodds], dtype=np.float32).view(np.uint32)[0]
+    cap = max(1024, len(lt_keys) + 64 * len(bcodes))
+    while True:
+        out_codes = np.empty(cap, dtype=np.int64)
+        out_levels = np.empty(cap, dtype=np.int8)
+        out_bits = np.empty(cap, dtype=np.uint32)
+        m = block_leaves(bcodes, lt_start.astype(np.int64), lt_offs[by].astype(np.int64),
+                         lt_logodds[by].view(np.uint32), o_block, np.ascontiguousarray(o_free, dtype=np.bool_),
+                         free_bits, local_off, local_code, out_codes, out_levels, out_bits)  # fmt: skip
+        if m >= 0:
+            break
+        cap *= 2
+    return _tree_bytes(out_codes[:m], out_levels[:m], out_bits[:m].view(np.float32), float(resolution))
 
 
 def write_ot(
