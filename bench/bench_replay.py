@@ -23,7 +23,8 @@ Configurations, all measured in this run:
   map is printed as IoU of LT and of P against ``exact``.
 
 - ``before`` (with ``--before REF``): the code of git ref REF (e.g. the commit before this
-  work), extracted with ``git archive`` under ``bench/.cache``, as it was.
+  work), extracted with ``git archive`` under ``bench/.cache``, as it was; ``before-exact``: REF's
+  code in the exact configuration (for a REF that has the fast reader and the threads).
 
 Every configuration runs in a fresh process, first replaying the 50 s house sample once so that
 numba kernels are compiled or loaded from their cache before the timed run.
@@ -145,6 +146,7 @@ if __name__ == "__main__" and "--generate-only" in sys.argv:
 CONFIGS = {
     # name: (fast, threads, depth_max_rate)
     "before": (False, False, 0.0),  # the code of --before REF (git archive), as it was
+    "before-exact": (True, True, 0.0),  # REF's code in the exact configuration (REF has fast/threads)
     "serial": (False, False, 0.0),
     "exact": (True, True, 0.0),
     "exact-1thread": (True, False, 0.0),
@@ -213,7 +215,7 @@ def run_config(name: str, log: Path, static: Path, work: Path, before: str | Non
     out = work / name
     out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
-    if name == "before":
+    if name.startswith("before"):
         env["PYTHONPATH"] = str(code_at(before or "HEAD")) + os.pathsep + env.get("PYTHONPATH", "")
     proc = subprocess.run([sys.executable, __file__, "--child", name, str(log), str(static), str(out)],
                           check=True, capture_output=True, text=True, env=env)
@@ -283,7 +285,7 @@ def main() -> None:
                     "'before' (that code, as it was, extracted under bench/.cache)")
     args = ap.parse_args()
     names = [n for n in args.only.split(",") if n]
-    if args.before and "before" not in names:
+    if args.before and not any(n.startswith("before") for n in names):
         names.insert(0, "before")
     for n in names:
         if n not in CONFIGS:
@@ -324,6 +326,11 @@ def main() -> None:
                 print(f"{n} vs serial: speed ratio {results[n]['speed'] / results['serial']['speed']:.2f}x, "
                       f"O and D bit for bit identical: {c['identical']}, IoU O {c['iou_O']:.4f}, "
                       f"LT {c['iou_LT']:.4f}, P {c['iou_P']}")
+    if "before-exact" in results and "exact" in results:
+        c = compare(results["before-exact"], results["exact"])
+        print(f"exact vs before-exact ({args.before}): speed ratio "
+              f"{results['exact']['speed'] / results['before-exact']['speed']:.2f}x, O and D bit for bit identical: "
+              f"{c['identical']}, IoU O {c['iou_O']:.4f}, LT {c['iou_LT']:.4f}, P {c['iou_P']}")  # fmt: skip
     for n in results:
         if n.startswith("rate") and ref in results:
             c = compare(results[ref], results[n])
