@@ -30,6 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from bench_replay import code_at  # noqa: E402  (the same extraction of --before REF's code)
+
 ROOT = Path(__file__).resolve().parents[1]
 CACHE = ROOT / "bench" / ".cache"
 DEFAULT_LOG = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
@@ -90,17 +93,6 @@ def worker(log: Path, fixed: str, base: str, rounds: int, out_npy: Path) -> dict
     med = statistics.median(times)
     return {"frames": n_frames, "lookups": 2 * n_frames, "total_s": med,
             "us_per_lookup": med / (2 * n_frames) * 1e6, "rounds_s": times}
-
-
-def code_at(ref: str) -> Path:
-    sha = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
-                         text=True).stdout.strip()
-    path = CACHE / f"code_{sha[:10]}"
-    if not (path / "ltmap_cli").is_dir():
-        path.mkdir(parents=True, exist_ok=True)
-        archive = subprocess.run(["git", "archive", sha, "ltmap_cli"], cwd=ROOT, check=True, capture_output=True)
-        subprocess.run(["tar", "-x", "-C", str(path)], input=archive.stdout, check=True)
-    return path
 
 
 def run(label: str, args: argparse.Namespace, pythonpath: Path | None) -> dict:

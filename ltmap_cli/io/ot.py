@@ -88,29 +88,36 @@ def _prune(codes, bits, out_codes, out_levels, out_bits):
     Morton order siblings are adjacent, the last one is child 7). Leaves stop at depth 1."""
     top = 0
     for i in range(codes.shape[0]):
-        out_codes[top] = codes[i]
-        out_levels[top] = 0
-        out_bits[top] = bits[i]
+        top = _push_leaf(out_codes, out_levels, out_bits, top, codes[i], bits[i])
+    return top
+
+
+def _push_leaf(out_codes, out_levels, out_bits, top, code, bits):
+    """Push a voxel leaf on the prune stack of ``_prune``, merge eight equal siblings into their
+    parent while it can; the new stack size."""
+    out_codes[top] = code
+    out_levels[top] = 0
+    out_bits[top] = bits
+    top += 1
+    while top >= 8:
+        lv = out_levels[top - 1]
+        if lv >= TREE_DEPTH - 1 or ((out_codes[top - 1] >> (3 * lv)) & 7) != 7:
+            break
+        shift = 3 * (lv + 1)
+        parent = out_codes[top - 1] >> shift
+        b = out_bits[top - 1]
+        same = True
+        for j in range(top - 8, top - 1):
+            if out_levels[j] != lv or (out_codes[j] >> shift) != parent or out_bits[j] != b:
+                same = False
+                break
+        if not same:
+            break
+        top -= 8
+        out_codes[top] = parent << shift
+        out_levels[top] = lv + 1
+        out_bits[top] = b
         top += 1
-        while top >= 8:
-            lv = out_levels[top - 1]
-            if lv >= TREE_DEPTH - 1 or ((out_codes[top - 1] >> (3 * lv)) & 7) != 7:
-                break
-            shift = 3 * (lv + 1)
-            parent = out_codes[top - 1] >> shift
-            b = out_bits[top - 1]
-            same = True
-            for j in range(top - 8, top - 1):
-                if out_levels[j] != lv or (out_codes[j] >> shift) != parent or out_bits[j] != b:
-                    same = False
-                    break
-            if not same:
-                break
-            top -= 8
-            out_codes[top] = parent << shift
-            out_levels[top] = lv + 1
-            out_bits[top] = b
-            top += 1
     return top
 
 
@@ -274,29 +281,7 @@ def _block_leaves(block_codes, lt_start, lt_offs, lt_bits, o_block, o_free, free
                 continue
             if top >= cap:
                 return -1
-            out_codes[top] = block_codes[n] | local_code[li]
-            out_levels[top] = 0
-            out_bits[top] = b
-            top += 1
-            while top >= 8:
-                lv = out_levels[top - 1]
-                if lv >= TREE_DEPTH - 1 or ((out_codes[top - 1] >> (3 * lv)) & 7) != 7:
-                    break
-                shift = 3 * (lv + 1)
-                parent = out_codes[top - 1] >> shift
-                bb = out_bits[top - 1]
-                same = True
-                for q in range(top - 8, top - 1):
-                    if out_levels[q] != lv or (out_codes[q] >> shift) != parent or out_bits[q] != bb:
-                        same = False
-                        break
-                if not same:
-                    break
-                top -= 8
-                out_codes[top] = parent << shift
-                out_levels[top] = lv + 1
-                out_bits[top] = bb
-                top += 1
+            top = _push_leaf(out_codes, out_levels, out_bits, top, block_codes[n] | local_code[li], b)
         for j in range(lt_start[n], lt_start[n + 1]):
             has[lt_offs[j]] = False
     return top
@@ -306,6 +291,9 @@ def _block_leaves(block_codes, lt_start, lt_offs, lt_bits, o_block, o_free, free
 def _kernels():
     import numba
 
+    global _push_leaf  # the kernels below call it: compiled first, as the global they resolve
+    if not isinstance(_push_leaf, numba.core.registry.CPUDispatcher):
+        _push_leaf = numba.njit(cache=True, inline="always")(_push_leaf)
     return tuple(numba.njit(cache=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder, _walk,
                                                       _block_leaves))
 
