@@ -88,7 +88,7 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
 @click.option("--snapshot-every", type=float, help="Seconds of log time between snapshots (default 60).")
 @click.option("--mode", type=click.Choice(["trinary", "scale", "raw"]), help="map.pgm mode, as map_server's "
               "(default trinary).")
-@click.option("--allow-truncated", is_flag=True, help="Replay what a cut-off or corrupt log holds, exit 0.")
+@click.option("--allow-truncated", is_flag=True, help="Replay what a cut-off or damaged log holds (an MCAP chunk that fails its CRC is skipped, the chunks after it are read), exit 0.")
 @click.option("--plan-goal", metavar="X,Y", help="Plan A* to this goal (fixed frame) every tick and time how "
               "fast the path reacts to each event (planner latency).")
 @click.option("--robot-radius", type=float, help="Robot radius for the planner's inflation, m (default 0.2).")
@@ -170,6 +170,6 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     if plan.get("warning"):
         click.echo(f"ltmap: warning: {plan['warning']}", err=True)
     if report.get("stopped_at"):
-        click.echo(f"  log cut off: {report['stopped_at']}")
+        click.echo(f"  log damaged or cut off: {report['stopped_at']}")
     click.echo(f"wrote {output}/ (map.yaml, long_term.yaml, snapshots/, report.json, config.yaml)")
 

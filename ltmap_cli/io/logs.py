@@ -260,8 +260,8 @@ class LogSet:
             return
         self.stats.stopped_at = "; ".join(stops)
         if not self.allow_truncated:
-            raise TruncatedLogError(f"log is truncated or corrupt: {self.stats.stopped_at}; to use what was "
-                                    f"read before that point, pass --allow-truncated")
+            raise TruncatedLogError(f"log is truncated or corrupt: {self.stats.stopped_at}; to use what could "
+                                    f"be read, pass --allow-truncated")
 
     def messages(self, selection: TopicSelection | None = None, *, fast: bool = False,
                  depth_max_rate: float = 0.0) -> Iterator[tuple[str, int, Frame]]:

@@ -541,14 +541,58 @@ class McapSource(Source):
             return
         counts: dict[str, int] = {}
         n = 0
-        try:
-            for _schema, ch, msg in self.reader.iter_messages(topics=sorted(topics), log_time_order=True):
-                i = counts.get(ch.topic, 0)
-                counts[ch.topic] = i + 1
-                n += 1
-                yield RawMessage(msg.log_time, ch.topic, i, self._thunk(ch, msg.data))
-        except Exception as err:  # noqa: BLE001 - corrupt chunk: stop here, report where
-            self.stopped_at = _stop_text(self.path, n, _tell(self.file), err)
+        damaged: list[str] = []
+        for ch, msg in self._indexed_messages(topics, damaged):
+            i = counts.get(ch.topic, 0)
+            counts[ch.topic] = i + 1
+            n += 1
+            yield RawMessage(msg.log_time, ch.topic, i, self._thunk(ch, msg.data))
+        if damaged:
+            self.stopped_at = (f"{self.path}: skipped {len(damaged)} damaged chunk{'s' if len(damaged) > 1 else ''} "
+                               f"and read the rest ({n} messages): {'; '.join(damaged[:3])}"
+                               + (f"; and {len(damaged) - 3} more" if len(damaged) > 3 else ""))  # fmt: skip
+
+    def _indexed_messages(self, topics: set[str], damaged: list[str]) -> Iterator[tuple[Any, Any]]:
+        """(channel, message) of ``topics`` in log-time order, chunk by chunk through the summary's
+        chunk indexes (as mcap's SeekingReader does). A chunk that cannot be read (CRC mismatch,
+        bad compression, cut short) is skipped and described in ``damaged``: the chunks after it
+        are still read, so one bad block of the disk loses its own seconds of log only."""
+        import heapq
+        import io
+
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Chunk, Message
+        from mcap.stream_reader import breakup_chunk
+
+        summary = self.reader.get_summary()
+        ids = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
+        heap: list[tuple] = []
+        for ci in summary.chunk_indexes:
+            if ci.message_index_offsets and not ids.intersection(ci.message_index_offsets):
+                continue  # no message of these topics in it
+            heap.append((ci.message_start_time, 0, ci.chunk_start_offset, 0, ci))
+        heapq.heapify(heap)
+        t0 = self.start_ns or 0
+        while heap:
+            item = heapq.heappop(heap)
+            if item[1] == 1:
+                yield item[4]
+                continue
+            ci = item[4]
+            try:
+                self.file.seek(ci.chunk_start_offset + 1 + 8, io.SEEK_SET)
+                chunk = Chunk.read(ReadDataStream(self.file))
+                records = list(breakup_chunk(chunk, validate_crc=True))
+            except Exception as err:  # noqa: BLE001 - a damaged chunk: skip it, say which
+                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                damaged.append(f"the chunk at byte {ci.chunk_start_offset} (log time "
+                               f"{(ci.message_start_time - t0) / 1e9:.1f} to {(ci.message_end_time - t0) / 1e9:.1f} s: "
+                               f"its messages are lost; {reason})")  # fmt: skip
+                continue
+            for index, record in enumerate(records):
+                if isinstance(record, Message) and record.channel_id in ids:
+                    heapq.heappush(heap, (record.log_time, 1, ci.chunk_start_offset, index,
+                                          (summary.channels[record.channel_id], record)))  # fmt: skip
 
     def close(self) -> None:
         self.file.close()
