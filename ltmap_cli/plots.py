@@ -636,7 +636,8 @@ def _event_title(event: dict | None, event_id) -> str:
         return f"event {event_id}"
     c = event.get("centroid")
     where = f" at ({c[0]:.1f}, {c[1]:.1f}) m" if c is not None else ""
-    return f"event {event_id}: {event.get('kind', '?')}{where}"
+    unseen = " (P unchanged)" if event.get("p_cells") == 0 else ""  # LT changed under something else
+    return f"event {event_id}: {event.get('kind', '?')}{where}{unseen}"
 
 
 def write_layer_history(

@@ -325,3 +325,11 @@ def test_visible_faces_of_a_block():
     vox, dirs = render3d.visible_faces(block, res)
     assert len(vox) == 6 * 9  # the surface of a 3x3x3 block
     assert np.bincount(dirs, minlength=6).tolist() == [9] * 6
+
+
+def test_event_titles_say_when_p_did_not_change():
+    from ltmap_cli.plots import _event_title
+
+    e = {"kind": "disappear", "centroid": [3.06, 1.93, 0.28], "p_cells": 0}
+    assert _event_title(e, 9) == "event 9: disappear at (3.1, 1.9) m (P unchanged)"
+    assert _event_title(dict(e, p_cells=4), 9) == "event 9: disappear at (3.1, 1.9) m"
