@@ -221,10 +221,7 @@ class Replay:
             from .io.mcap_out import ReplayMcapWriter
 
             self.mcap = ReplayMcapWriter(out / "replay.mcap")
-            # the mounts given with --tf go to /tf_static, so that a viewer places the sensors
-            # where the replay did
-            for m in mounts:
-                self.mcap.write_tf(0, [(m.parent, m.child, m.translation, m.rotation_xyzw)], static=True)
+        self._mounts = mounts  # written to replay.mcap's /tf_static once the log's start is known
         return self._run(logs_paths=req.logs, out=out, static_info=static_info, resume_info=resume_info,
                          t_wall0=t_wall0)  # fmt: skip
 
@@ -240,6 +237,12 @@ class Replay:
                 depth_topics=cfg.replay.depth_topics,
             )
             self.log_start = logs.start_ns
+            if self.mcap is not None:
+                # the mounts given with --tf go to /tf_static, so that a viewer places the sensors
+                # where the replay did (stamped at the log's start, like the log's own)
+                for m in self._mounts:
+                    self.mcap.write_tf(self.log_start, [(m.parent, m.child, m.translation, m.rotation_xyzw)],
+                                       static=True)  # fmt: skip
             self.log_total_s = max((logs.end_ns - logs.start_ns) / NS, 1e-9)
             tick_ns = int(round(cfg.map.layers.tick * NS))
             wait_ns = int(cfg.replay.tf_wait * NS)
@@ -503,6 +506,7 @@ class Replay:
         p = project(lmap)
         sig = (p.data.shape, tuple(p.origin))
         last = self._p_published
+        self._next_map_ns = stamp_ns + int(self.cfg.replay.map_period * NS)  # checked at most once a period
         if not force and not self._map_dirty and last is not None and last[0] == sig and np.array_equal(last[1], p.data):
             return
         self._p_published = (sig, p.data)
@@ -514,7 +518,6 @@ class Replay:
         self.mcap.write_cloud("/ltmap/occupied_voxels", stamp_ns, coord_to_pos(keys, lmap.resolution), frame,
                               values=lmap.values("LT", keys), value_name="long_term")  # fmt: skip
         self._map_dirty = False
-        self._next_map_ns = stamp_ns + int(self.cfg.replay.map_period * NS)
 
     def _publish_fused_scan(self, item: ScanFrame, T: np.ndarray) -> None:
         """/scan_fused: the virtual scan of SPEC 2.3 in the laser's frame and angles."""
@@ -668,6 +671,9 @@ class Replay:
         fused_s = 0.0
         if self.mcap is not None:
             self._frame_log.append((item.stamp_ns, self.lmap.frame_id))
+            keep_ns = item.stamp_ns - 2 * int(self.cfg.replay.scan_fused_window_s * NS) - NS
+            while len(self._frame_log) > 1 and self._frame_log[0][0] < keep_ns:
+                self._frame_log.popleft()
         if self.mcap is not None and isinstance(item, ScanFrame):
             t0 = time.perf_counter()
             self._publish_fused_scan(item, T)

@@ -88,16 +88,39 @@ def snapshot_ot_bytes(lmap: LayeredMap) -> bytes:
     lt_keys, lt = long_term_voxels(lmap)
     O = lmap.O
     o_free = (O.channel("logodds") < 0) & (O.channel("stamp") > 0)
-    blocks = O.block_keys()
-    o_block = np.arange(len(blocks), dtype=np.int64)
-    if len(lt_keys):  # long-term voxels in blocks the sensor map never allocated (seeds, resume)
-        b, _ = O.lookup(lt_keys)
-        extra = np.unique(lt_keys[b < 0] >> 3, axis=0)
+    o_block = np.flatnonzero(o_free.any(axis=1))  # the sensor's blocks that hold free space
+    blocks = O.block_keys()[o_block]
+    if len(lt_keys):  # long-term voxels in blocks without free space (or never allocated: seeds, resume)
+        lt_blocks = np.unique(lt_keys >> 3, axis=0)
+        have = {tuple(k) for k in blocks.tolist()}
+        extra = np.array([k for k in lt_blocks.tolist() if tuple(k) not in have], dtype=np.int64).reshape(-1, 3)
         if len(extra):
             blocks = np.concatenate([blocks, extra])
             o_block = np.concatenate([o_block, np.full(len(extra), -1, dtype=np.int64)])
+    # OctoMap's keys are 16 bits: voxel indices -32768..32767 (+-1.6 km at 0.05 m); what lies
+    # beyond is left out of the .ot (the state .npz keeps it), once said
+    b_in = ((blocks >= -4096) & (blocks <= 4095)).all(axis=1)
+    v_in = ((lt_keys >= -32768) & (lt_keys <= 32767)).all(axis=1)
+    if not (b_in.all() and v_in.all()):
+        blocks, o_block, lt_keys, lt = blocks[b_in], o_block[b_in], lt_keys[v_in], lt[v_in]
+        _warn_once(f"the .ot snapshots leave out what lies beyond +-{32768 * lmap.resolution / 1000:.1f} km of "
+                   f"the fixed frame's origin (OctoMap's 16-bit keys at {lmap.resolution:g} m); the state .npz "
+                   f"snapshots hold it all")  # fmt: skip
     return blocks_ot_bytes(blocks, o_block, o_free, float(lt_to_ot_logodds(0.0, thr)), lt_keys,
                            lt_to_ot_logodds(lt, thr), lmap.resolution)  # fmt: skip
+
+
+_WARNED: set[str] = set()
+
+
+def _warn_once(text: str) -> None:
+    import warnings
+
+    from .errors import LtmapWarning
+
+    if text not in _WARNED:
+        _WARNED.add(text)
+        warnings.warn(LtmapWarning(text), stacklevel=3)
 
 
 def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
@@ -126,12 +149,7 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     thr = lmap.cfg.projection.occupied_thresh
     out = {}
     ot_path = folder / f"long_term_{name}.ot"
-    try:
-        data = snapshot_ot_bytes(lmap)
-    except ValueError as err:
-        raise MapFileError(f"cannot write the snapshot {ot_path}: {err}; the map is too far from the fixed "
-                           f"frame's origin for OctoMap's keys (+-32768 voxels): use a nearer fixed frame "
-                           f"or a coarser --resolution") from None  # fmt: skip
+    data = snapshot_ot_bytes(lmap)
     with atomic_path(ot_path) as tmp:
         tmp.write_bytes(data)
     del data
@@ -176,7 +194,8 @@ def load_resume(lmap: LayeredMap, path: str | Path) -> dict:
     if p.suffix == ".ot":
         from .io.ot import read_ot
 
-        keys, logodds, res = read_ot(p)
+        floor = float(lt_to_ot_logodds(LT_CLIP * 1.5, lmap.cfg.projection.occupied_thresh))
+        keys, logodds, res = read_ot(p, min_logodds=floor)  # the free leaves (LT = 0) are not expanded
         if not math.isclose(res, lmap.resolution, rel_tol=1e-6):
             raise MapFileError(
                 f"--resume {p}: resolution {res} m differs from this run's {lmap.resolution} m; "

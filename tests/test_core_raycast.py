@@ -197,3 +197,15 @@ def test_far_coordinates_are_refused_not_silently_merged():
         m.seed_long_term(np.array([[10_000_000, 0, 20]]), 1.0)
     # a max-range cut bounds the reach: a point 100 km away with max_range 4 m is fine near the origin
     m.integrate([0.01, 0.01, 1.01], [[100_000.0, 0.01, 1.01]], max_range=4.0)
+
+
+def test_infinite_or_huge_range_max_is_not_refused():
+    """pointcloud_to_laserscan publishes range_max = inf: the reach is the farthest point, not inf."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+
+    m = LayeredMap(MapConfig())
+    pts = np.array([[1.0, 0.0, 0.3], [2.0, 0.5, 0.3], [np.inf, 0.0, 0.3]])
+    for max_range in (np.inf, 1e6):
+        r = m.integrate([0.0, 0.0, 0.3], pts, [True, True, True], max_range=max_range)
+        assert r.hits == 2

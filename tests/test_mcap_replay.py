@@ -179,7 +179,8 @@ def test_tf_in_the_mcap_is_what_the_replay_used(tmp_path):
     r = run(["replay", str(log), "-o", str(out), "-q", "--mcap-out", "--tf", f"base_link:laser={mount}"])
     assert r.exit_code == 0, r.output
     got = read_back(out / "replay.mcap")
-    (_, _, st), = got["/tf_static"]
+    (_, t_static, st), = got["/tf_static"]
+    assert t_static == min(m.log_time_ns for m in msgs)  # at the log's start, not at time 0
     (laser,) = [t for t in st.transforms if t.child_frame_id == "laser"]
     assert laser.header.frame_id == "base_link"
     v = laser.transform.translation

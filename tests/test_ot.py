@@ -322,3 +322,52 @@ def test_snapshot_built_block_by_block_is_the_voxel_list_file():
     keys, logodds = snapshot_voxels(m)
     assert len(keys) > 10_000
     assert snapshot_ot_bytes(m) == ot_bytes(keys, logodds, m.resolution)
+
+
+def test_snapshot_leaves_out_what_octomap_keys_cannot_hold(tmp_path):
+    """A map reaching beyond +-32768 voxels (1.6 km at 0.05 m) still snapshots: the .ot holds what
+    OctoMap's 16-bit keys can address, with one warning; the state .npz holds everything."""
+    import warnings
+
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.errors import LtmapWarning
+    from ltmap_cli.io.ot import read_ot
+    from ltmap_cli.snapshots import _WARNED, write_snapshot
+
+    m = LayeredMap(MapConfig())
+    m.integrate([0.01, 0.01, 1.01], [[1.0, 0.01, 1.01]])
+    m.integrate([2000.01, 0.01, 1.01], [[2001.0, 0.01, 1.01]])  # 2 km east: keys ~40000
+    m.seed_long_term(np.array([[10, 0, 20], [40_000, 0, 20]]), 1.0)
+    _WARNED.clear()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        paths = write_snapshot(m, tmp_path, None, {})
+    assert [str(w.message) for w in caught if issubclass(w.category, LtmapWarning)] == [
+        "the .ot snapshots leave out what lies beyond +-1.6 km of the fixed frame's origin (OctoMap's 16-bit keys "
+        "at 0.05 m); the state .npz snapshots hold it all"]
+    keys, logodds, _ = read_ot(paths["ot"])
+    assert keys.max() < 32768 and keys[logodds > 0].tolist() == [[10, 0, 20]]  # the near seed wins over free
+
+
+def test_resume_reads_only_the_long_term_voxels_of_a_snapshot(tmp_path):
+    """A snapshot's free leaves are not expanded when only long-term voxels are wanted (resume):
+    read_ot with min_logodds returns the LT > 0 voxels and nothing of the free space."""
+    from ltmap_cli.core.config import MapConfig
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.io.ot import read_ot
+    from ltmap_cli.snapshots import LT_CLIP, load_resume, long_term_voxels, lt_to_ot_logodds, write_snapshot
+
+    m = LayeredMap(MapConfig())
+    for y in np.arange(-1.0, 1.0, 0.05):
+        m.integrate([0.01, 0.01, 1.01], [[3.0, y, 1.01]])
+    m.seed_long_term(np.array([[60, 0, 20], [61, 0, 20], [5, 5, 5]]), np.array([1.0, 0.3, 0.01]))
+    path = write_snapshot(m, tmp_path, None, {})["ot"]
+    everything, _, _ = read_ot(path)
+    floor = float(lt_to_ot_logodds(LT_CLIP * 1.5, 0.65))
+    keys, logodds, _ = read_ot(path, min_logodds=floor)
+    lt_keys, _ = long_term_voxels(m)
+    assert len(everything) > 1000 > len(keys) == len(lt_keys) == 3
+    assert sorted(map(tuple, keys.tolist())) == sorted(map(tuple, lt_keys.tolist()))
+    day2 = LayeredMap(MapConfig())
+    assert load_resume(day2, path)["long_term_voxels"] == 3

@@ -15,6 +15,7 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -520,12 +521,15 @@ class LayeredMap:
             rets = np.ascontiguousarray(returns, dtype=np.bool_).reshape(-1)
             if len(rets) != len(pts):
                 raise CoreError(f"integrate: {len(pts)} points but {len(rets)} return flags")
-        if max_range > 0:
-            reach = float(max_range) + self.resolution
-        else:  # no cut: the farthest finite point
-            fin = pts[np.isfinite(pts).all(axis=1)]
-            reach = float(np.abs(fin - origin).max()) + self.resolution if len(fin) else 0.0
-        check_extent(origin, reach, self.resolution)
+        # the rays reach the farthest finite point, or max_range when that is nearer (inf points
+        # are dropped or become no-return rays cut at max_range; an infinite max_range cuts nothing)
+        fin = pts[np.isfinite(pts).all(axis=1)]
+        reach = float(np.abs(fin - origin).max()) if len(fin) else 0.0
+        if 0 < max_range < reach:
+            reach = float(max_range)
+        if max_range > 0 and math.isfinite(max_range) and not rets.all():
+            reach = max(reach, float(max_range))  # no-return rays clear up to max_range
+        check_extent(origin, reach + self.resolution, self.resolution)
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         ends, kind = classify_rays(
             origin, pts, rets, float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max,
@@ -563,13 +567,13 @@ class LayeredMap:
         else:
             raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
         T = np.ascontiguousarray(T, dtype=np.float64)
-        if max_range > 0:
-            reach = float(max_range)
-        elif unit_mm:
-            reach = 65.535  # the largest 16UC1 depth
+        if unit_mm:
+            reach = 65.535 * 4.0  # the largest 16UC1 depth, as a range at a 150 deg FOV's corners
         else:
             fin = depth[np.isfinite(depth)]
-            reach = float(fin.max()) * 4.0 if len(fin) else 0.0  # depth -> range: corners of a 150 deg FOV
+            reach = float(fin.max()) * 4.0 if len(fin) else 0.0
+        if 0 < max_range < reach:
+            reach = float(max_range)
         check_extent(T[:3, 3], reach + self.resolution, self.resolution, "depth camera")
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         return depth_image_rays(

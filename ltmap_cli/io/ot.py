@@ -183,9 +183,10 @@ def _emit_preorder(codes, levels, values, out_values, out_masks):
     return idx
 
 
-def _walk(masks, values, occupied_only, fill, out_keys, out_values):
+def _walk(masks, values, min_value, fill, out_keys, out_values):
     """Walk pre-order nodes. Returns (status, nodes consumed, voxels). With ``fill``, writes the
-    voxels' indices (key - 32768) and values; a leaf above depth 16 gives all its voxels."""
+    voxels' indices (key - 32768) and values; a leaf above depth 16 gives all its voxels. Leaves
+    whose value is not above ``min_value`` are skipped (not expanded: -inf keeps every leaf)."""
     n = masks.shape[0]
     if n == 0:
         return _TRUNCATED, 0, 0
@@ -202,7 +203,7 @@ def _walk(masks, values, occupied_only, fill, out_keys, out_values):
         m = np.int64(masks[cur])
         if m == 0:
             v = values[cur]
-            if (not occupied_only) or v > 0.0:
+            if v > min_value:
                 s = TREE_DEPTH - d
                 side = np.int64(1) << s
                 if fill:
@@ -503,13 +504,16 @@ def _parse_header(raw: bytes, path: Path) -> tuple[str, int, float, int]:
 
 
 def read_ot(
-    path: str | os.PathLike, occupied_only: bool = False, max_voxels: int = MAX_VOXELS
+    path: str | os.PathLike, occupied_only: bool = False, max_voxels: int = MAX_VOXELS,
+    min_logodds: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """Read an OctoMap ``OcTree`` ``.ot`` file (ours or OctoMap's).
 
     Returns (keys int64 (N, 3) voxel indices, logodds float32 (N,), resolution), the leaves in
     pre-order; a pruned leaf is expanded into all its voxels. With ``occupied_only`` only voxels
-    with log-odds > 0 are returned (OctoMap's files hold large pruned free-space leaves). Raises
+    with log-odds > 0 are returned (OctoMap's files hold large pruned free-space leaves); with
+    ``min_logodds`` only those above it (leaves below are not expanded, so a snapshot's free space
+    costs no memory when only its long-term voxels are wanted). Raises
     MapFileError for a missing, truncated or corrupt file, a ``.bt`` file, another tree id, or more
     than ``max_voxels`` voxels.
     """
@@ -531,7 +535,8 @@ def read_ot(
     walk = _kernels()[4]
     dummy_keys = np.zeros((0, 3), np.int64)
     dummy_values = np.zeros(0, np.float32)
-    status, consumed, voxels = walk(masks, values, occupied_only, False, dummy_keys, dummy_values)
+    floor = 0.0 if occupied_only else (-math.inf if min_logodds is None else float(min_logodds))
+    status, consumed, voxels = walk(masks, values, floor, False, dummy_keys, dummy_values)
     if status == _TRUNCATED:
         raise MapFileError(
             f"{path}: OctoMap data truncated ({num_records} nodes present, header says {size}); "
@@ -546,5 +551,5 @@ def read_ot(
         )
     keys = np.empty((voxels, 3), np.int64)
     logodds = np.empty(voxels, np.float32)
-    walk(masks, values, occupied_only, True, keys, logodds)
+    walk(masks, values, floor, True, keys, logodds)
     return keys, logodds, resolution
