@@ -81,3 +81,29 @@ def test_a_ros2_bag_as_folder_and_as_metadata_is_the_same_log(tmp_path):
     assert r.exit_code == 2
     assert f"log {bag / 'metadata.yaml'} is given twice (the same log as {bag})" in r.stderr
     assert not (tmp_path / "o").exists()
+
+
+def test_the_same_recording_in_two_formats_is_warned_about(tmp_path):
+    """A .bag and its MCAP conversion hold the same messages at the same log times: one warning
+    (the frames were integrated twice). Logs recorded one after the other, or split by topic (a
+    shared /tf_static aside), give none."""
+    from logfactory import tf
+    from test_replay import MOUNT
+
+    msgs = room_messages(0.0, 2.0, False)
+    bag = write_log(tmp_path / "a.bag", "ros1", msgs)
+    conv = write_log(tmp_path / "a.mcap", "mcap-ros2", msgs)
+    r = _invoke(["replay", bag, conv, "-o", tmp_path / "o1", "-q", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("ltmap: warning:")]
+    n_tf = sum(1 for m in msgs if m.topic == "/tf")
+    assert warn == [f"ltmap: warning: {n_tf} messages on /tf are in both {bag} and {conv} at the same log times: the "
+                    f"same recording given twice (e.g. a .bag and its conversion)? Their frames were integrated "
+                    f"twice; give one of them"]
+    later = write_log(tmp_path / "b.mcap", "mcap-ros2", room_messages(10.0, 2.0, False))
+    static = tf(1_000_000_000, [("base_link", "laser", MOUNT, (0, 0, 0, 1))], static=True)
+    scans_only = write_log(tmp_path / "s.mcap", "mcap-ros2", [static] + [m for m in msgs if m.topic == "/scan"])
+    tf_only = write_log(tmp_path / "t.mcap", "mcap-ros2", [m for m in msgs if m.topic != "/scan"])
+    for pair, out in (((conv, later), "o2"), ((scans_only, tf_only), "o3")):
+        r = _invoke(["replay", *pair, "-o", tmp_path / out, "-q", "--no-plots"])
+        assert r.exit_code == 0 and "warning" not in r.stderr, r.stderr

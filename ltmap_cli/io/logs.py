@@ -189,6 +189,9 @@ def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_to
     return sel
 
 
+_SHARED_TOPICS = {"/tf_static", "/rosout", "/rosout_agg", "/parameter_events", "/robot_description"}
+
+
 class LogSet:
     """One or several open logs; use as a context manager or call ``close()``."""
 
@@ -242,17 +245,30 @@ class LogSet:
         ``decode()`` returns the deserialized message. Cheap: use it to count. Truncation is
         handled as in ``messages``."""
         wanted = set(topics)
-        streams = [self._tagged(src, wanted) for src in self.sources]
-        for t, topic, decode, where in heapq.merge(*streams, key=lambda x: x[0]):
+        streams = [self._tagged(src, wanted, k) for k, src in enumerate(self.sources)]
+        last: dict[str, tuple[int, int]] = {}  # topic -> (log time, source) of its last message
+        twice: Counter[tuple[str, int, int]] = Counter()  # (topic, source a, source b) -> messages
+        for t, topic, decode, where, k in heapq.merge(*streams, key=lambda x: x[0]):
             n = self.stats.messages_per_topic
             n[topic] = n.get(topic, 0) + 1
+            prev = last.get(topic)
+            if prev is not None and prev[0] == t and prev[1] != k and topic not in _SHARED_TOPICS:
+                twice[(topic, prev[1], k)] += 1
+            last[topic] = (t, k)
             yield topic, t, decode, where
+        if twice:
+            (topic, a, b), count = twice.most_common(1)[0]
+            pa, pb = self.sources[a].path, self.sources[b].path
+            warnings.warn(LtmapWarning(
+                f"{count} messages on {topic} are in both {pa} and {pb} at the same log times: the same "
+                f"recording given twice (e.g. a .bag and its conversion)? Their frames were integrated twice; "
+                f"give one of them"), stacklevel=2)  # fmt: skip
         self._finish()
 
     @staticmethod
-    def _tagged(src: Source, wanted: set[str]) -> Iterator[tuple[int, str, Any, str]]:
+    def _tagged(src: Source, wanted: set[str], k: int) -> Iterator[tuple[int, str, Any, str, int]]:
         for m in src.iter(wanted):
-            yield m.log_time_ns, m.topic, m.decode, f"on {m.topic}, message index {m.index} in {src.path}"
+            yield m.log_time_ns, m.topic, m.decode, f"on {m.topic}, message index {m.index} in {src.path}", k
 
     def _finish(self) -> None:
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
@@ -422,3 +438,5 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
             s.close()
         raise
     return LogSet(paths, sources, allow_truncated)
+
+
