@@ -535,6 +535,26 @@ def event_rectangle(event: dict, min_size: float = 0.0):
     return x0, y0, x1 - x0, y1 - y0
 
 
+def _paint_event_cells(ax, grid, events: list[dict], event_cells: dict) -> None:
+    """Fill each event's cells in its kind's colour: one RGBA image over the map's extent."""
+    from matplotlib.colors import to_rgba as _rgba
+
+    res = float(grid.resolution)
+    ox, oy = float(grid.origin[0]), float(grid.origin[1])
+    H, W = np.asarray(grid.data).shape
+    over = np.zeros((H, W, 4), dtype=np.float32)
+    for e in events:
+        xy = event_cells.get(e.get("id"))
+        if xy is None or not len(xy):
+            continue
+        c = np.floor((np.asarray(xy, dtype=float)[:, 0] - ox) / res + 0.5).astype(np.int64)
+        r = np.floor((np.asarray(xy, dtype=float)[:, 1] - oy) / res + 0.5).astype(np.int64)
+        ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        over[r[ok], c[ok]] = _rgba(EVENT_COLORS.get(e.get("kind", "appear"), OI_PURPLE), 0.6)
+    ax.imshow(over, origin="lower", extent=(ox, ox + W * res, oy, oy + H * res), interpolation="nearest",
+              zorder=3)  # fmt: skip
+
+
 def plot_map_events(
     ax,
     grid,
@@ -544,11 +564,14 @@ def plot_map_events(
     robot_xy: np.ndarray | None = None,
     title: str | None = None,
     labels: bool = True,
+    event_cells: dict | None = None,
 ) -> None:
     """The final 2D map (``plot_map``) with each event's xy extent as a box (vermillion: appeared,
     blue: disappeared) labelled with its id, and optionally the planned path (green) and the
     robot's trajectory (purple). A box narrower than a cell is drawn one cell wide. Each box is a
-    ``Rectangle`` whose gid is ``"event <id>"``."""
+    ``Rectangle`` whose gid is ``"event <id>"``. With ``event_cells`` ({id: (N, 2) lower-left
+    corners of its cells, in metres}) the event's own cells are filled instead of its whole box
+    (an L-shaped wall is an L, not a rectangle), and the box is a thin outline."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Rectangle
 
@@ -558,13 +581,18 @@ def plot_map_events(
     if title is None:
         title = f"Final map: {counts['appear']} appeared, {counts['disappear']} disappeared"
     plot_map(ax, grid, title=title, scale_bar=False)
+    if event_cells:
+        _paint_event_cells(ax, grid, events, event_cells)
     for e in events:
         kind = e.get("kind", "appear")
         colour = EVENT_COLORS.get(kind, OI_PURPLE)
         x0, y0, w, h = event_rectangle(e, min_size=float(grid.resolution))
-        ax.add_patch(Rectangle((x0, y0), w, h, facecolor=colour, alpha=0.25, edgecolor="none", zorder=3))
+        cells = event_cells is not None and e.get("id") in event_cells
+        if not cells:
+            ax.add_patch(Rectangle((x0, y0), w, h, facecolor=colour, alpha=0.25, edgecolor="none", zorder=3))
         box = Rectangle(
-            (x0, y0), w, h, fill=False, edgecolor=colour, lw=2, zorder=4, gid=f"event {e.get('id')}"
+            (x0, y0), w, h, fill=False, edgecolor=colour, lw=0.8 if cells else 2, ls="--" if cells else "-",
+            zorder=4, gid=f"event {e.get('id')}",
         )
         ax.add_patch(box)
         if labels:
@@ -724,6 +752,7 @@ def write_summary_plots(
     targets=None,
     max_history_events: int = MAX_HISTORY_EVENTS,
     map3d: dict | None = None,
+    event_cells: dict | None = None,
 ) -> dict[str, str]:
     """Write the replay's plots into ``out_dir`` and return ``{name: path}``:
 
@@ -758,7 +787,7 @@ def write_summary_plots(
 
     if grid is not None:
         fig, ax = new_figure(grid.width, grid.height, legend=True)
-        plot_map_events(ax, grid, events, path_xy=path_xy, robot_xy=robot_xy)
+        plot_map_events(ax, grid, events, path_xy=path_xy, robot_xy=robot_xy, event_cells=event_cells)
         p = out / "map_events.png"
         save_png(fig, p)
         written["map_events"] = str(p)

@@ -709,6 +709,7 @@ class Replay:
             self.tracker.attribute(events, lmap.resolution)
         write_text_atomic(out / "events.csv", events_csv(events))
         self.events = events
+        self._members = members
         hist_i, hist_v = lmap.events.history
         self.histories = {
             e["id"]: event_history(hist_i, hist_v, members[e["id"]], clock,
@@ -773,12 +774,25 @@ class Replay:
             periods_ms=self.periods_ms,
             path_xy=self.tracker.final_path_xy if self.tracker is not None else None, robot_xy=traj,
             occupied_thresh=cfg.map.projection.occupied_thresh,
-            targets={"add": lay.st_rise_s, "remove": lay.lt_fall_s},
+            targets={"add": lay.st_rise_s, "remove": lay.lt_fall_s}, event_cells=self._event_cells(),
             map3d={"centers": coord_to_pos(keys, lmap.resolution), "values": lmap.values("LT", keys),
                    "resolution": lmap.resolution,
                    "static_centers": coord_to_pos(static_keys, lmap.resolution) if static_keys is not None else None,
                    "title": "final map: long-term voxels by height, static in grey"},
         )  # fmt: skip
+
+    def _event_cells(self) -> dict[int, np.ndarray]:
+        """{event id: (N, 2) lower-left corners (m) of the xy cells its voxels cover}, for the map plot."""
+        lmap = self.lmap
+        coords = lmap.D.block_coords[: lmap.D.n_blocks].astype(np.int64)
+        out = {}
+        for eid, vids in getattr(self, "_members", {}).items():
+            b, o = vids // 512, vids % 512
+            i = coords[b, 0] * 8 + ((o >> 6) & 7)
+            j = coords[b, 1] * 8 + ((o >> 3) & 7)
+            cells = np.unique(np.stack([i, j], axis=1), axis=0)
+            out[eid] = cells * lmap.resolution
+        return out
 
     def _write_maps(self, out: Path) -> dict[str, str]:
         from .io.mapfile import GridMap, write_map

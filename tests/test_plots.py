@@ -333,3 +333,27 @@ def test_event_titles_say_when_p_did_not_change():
     e = {"kind": "disappear", "centroid": [3.06, 1.93, 0.28], "p_cells": 0}
     assert _event_title(e, 9) == "event 9: disappear at (3.1, 1.9) m (P unchanged)"
     assert _event_title(dict(e, p_cells=4), 9) == "event 9: disappear at (3.1, 1.9) m"
+
+
+def test_map_events_fill_the_events_own_cells(tmp_path):
+    """With event_cells, an L-shaped event fills its own cells (not its bounding box): one RGBA
+    image over the map, opaque exactly at those cells, in the event's colour."""
+    from matplotlib.colors import to_rgba as rgba
+    from matplotlib.image import AxesImage
+
+    g = grid_map()
+    res = g.resolution
+    corner = np.array([[2.0, 3.0], [2.0 + res, 3.0], [2.0 + 2 * res, 3.0], [2.0, 3.0 + res], [2.0, 3.0 + 2 * res]])
+    ev = event(1, "appear", 2.0 + 1.5 * res, 3.0 + 1.5 * res, 3 * res, 3 * res)
+    fig, ax = plots.new_figure(g.width, g.height, legend=True)
+    plots.plot_map_events(ax, g, [ev], event_cells={1: corner})
+    overlays = [im for im in ax.get_children() if isinstance(im, AxesImage) and im.get_array().ndim == 3
+                and im.get_array().shape[2] == 4]  # fmt: skip
+    (over,) = [im for im in overlays if np.asarray(im.get_array())[..., 3].any()]
+    a = np.asarray(over.get_array())
+    rows, cols = np.nonzero(a[..., 3] > 0)
+    got = sorted(zip((cols * res + g.origin[0]).round(6).tolist(), (rows * res + g.origin[1]).round(6).tolist()))
+    assert got == sorted(map(tuple, corner.round(6).tolist()))
+    assert tuple(a[rows[0], cols[0]]) == pytest.approx(rgba(plots.EVENT_COLORS["appear"], 0.6))
+    assert _event_boxes(ax)["event 1"].get_linewidth() < 1  # the box is only an outline now
+    check_png(save(fig, tmp_path / "cells.png"))
