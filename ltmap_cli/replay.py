@@ -529,11 +529,9 @@ class Replay:
         sign = 1.0 if T[2, 2] >= 0 else -1.0  # an upside-down laser turns the other way
         angles = sign * item.angles
         # current obstacles in O: updated by a frame stamped within the window before this scan
-        window_ns = int(self.cfg.replay.scan_fused_window_s * NS)
-        log = self._frame_log
-        while len(log) > 1 and log[1][0] < item.stamp_ns - window_ns:
-            log.popleft()
-        since = next((fid for stamp, fid in log if stamp >= item.stamp_ns - window_ns), self.lmap.frame_id + 1)
+        # (_consume keeps the last few seconds of frames in _frame_log)
+        t_from = item.stamp_ns - int(self.cfg.replay.scan_fused_window_s * NS)
+        since = next((fid for stamp, fid in self._frame_log if stamp >= t_from), self.lmap.frame_id + 1)
         ranges = virtual_scan(self.lmap, self._p_latest, (T[0, 3], T[1, 3], yaw), angles, item.range_min,
                               item.range_max, o_since_frame=since)  # fmt: skip
         self.mcap.write_scan("/scan_fused", item.stamp_ns, item.frame_id, item.angle_min, item.angle_increment,
@@ -783,16 +781,12 @@ class Replay:
 
     def _event_cells(self) -> dict[int, np.ndarray]:
         """{event id: (N, 2) lower-left corners (m) of the xy cells its voxels cover}, for the map plot."""
+        from .analysis.events import _voxel_keys
+
         lmap = self.lmap
-        coords = lmap.D.block_coords[: lmap.D.n_blocks].astype(np.int64)
-        out = {}
-        for eid, vids in getattr(self, "_members", {}).items():
-            b, o = vids // 512, vids % 512
-            i = coords[b, 0] * 8 + ((o >> 6) & 7)
-            j = coords[b, 1] * 8 + ((o >> 3) & 7)
-            cells = np.unique(np.stack([i, j], axis=1), axis=0)
-            out[eid] = cells * lmap.resolution
-        return out
+        coords = lmap.D.block_coords[: lmap.D.n_blocks]
+        return {eid: np.unique(_voxel_keys(vids // 512, vids % 512, coords)[:, :2], axis=0) * lmap.resolution
+                for eid, vids in getattr(self, "_members", {}).items()}  # fmt: skip
 
     def _write_maps(self, out: Path) -> dict[str, str]:
         from .io.mapfile import GridMap, write_map
