@@ -143,10 +143,8 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     if not logs:
         raise click.UsageError("give at least one LOG (a .bag, a ROS 2 bag folder or an .mcap)")
 
-    from ..outputs import check_replay_outputs
-    from ..replay import Replay, ReplayRequest
+    from ..replay import Replay, ReplayRequest  # Replay.run checks the output names before any work
 
-    check_replay_outputs(output, cfg, static=static is not None)  # a bad name must not cost a whole replay
     bar = None if quiet else ProgressBar()
     run = Replay(cfg, ReplayRequest(list(logs), output, static=static, resume=resume), progress=bar)
     try:

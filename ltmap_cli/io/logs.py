@@ -438,5 +438,3 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
             s.close()
         raise
     return LogSet(paths, sources, allow_truncated)
-
-
