@@ -15,7 +15,6 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -431,6 +430,9 @@ KEY_LIMIT = (1 << 20) - 2  # voxel keys within +-KEY_LIMIT: the packed keys of t
 # hold 21 bits per axis (block keys: 21 bits of block coordinates), so farther voxels would collide
 
 
+MAX_PLAIN_RANGE = 1000.0  # m: a max_range up to this bounds the reach of a frame's rays as it is
+
+
 def check_extent(origin: np.ndarray, reach: float, resolution: float, what: str = "sensor") -> None:
     """CoreError unless ``origin`` is finite and every voxel within ``reach`` metres of it has
     keys within +-KEY_LIMIT (+-52 km at 0.05 m): beyond, voxels would silently share keys."""
@@ -521,14 +523,15 @@ class LayeredMap:
             rets = np.ascontiguousarray(returns, dtype=np.bool_).reshape(-1)
             if len(rets) != len(pts):
                 raise CoreError(f"integrate: {len(pts)} points but {len(rets)} return flags")
-        # the rays reach the farthest finite point, or max_range when that is nearer (inf points
-        # are dropped or become no-return rays cut at max_range; an infinite max_range cuts nothing)
-        fin = pts[np.isfinite(pts).all(axis=1)]
-        reach = float(np.abs(fin - origin).max()) if len(fin) else 0.0
-        if 0 < max_range < reach:
+        # the rays reach at most max_range (the usual case: no pass over the points); without a
+        # sensible one (0, inf as pointcloud_to_laserscan publishes, 1e6), the farthest finite point
+        if 0 < max_range <= MAX_PLAIN_RANGE:
             reach = float(max_range)
-        if max_range > 0 and math.isfinite(max_range) and not rets.all():
-            reach = max(reach, float(max_range))  # no-return rays clear up to max_range
+        else:
+            fin = pts[np.isfinite(pts).all(axis=1)]
+            reach = float(np.abs(fin - origin).max()) if len(fin) else 0.0
+            if 0 < max_range < reach:
+                reach = float(max_range)
         check_extent(origin, reach + self.resolution, self.resolution)
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         ends, kind = classify_rays(
@@ -567,13 +570,13 @@ class LayeredMap:
         else:
             raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
         T = np.ascontiguousarray(T, dtype=np.float64)
-        if unit_mm:
+        if 0 < max_range <= MAX_PLAIN_RANGE:
+            reach = float(max_range)
+        elif unit_mm:
             reach = 65.535 * 4.0  # the largest 16UC1 depth, as a range at a 150 deg FOV's corners
-        else:
+        else:  # only without a finite max_range: a pass over the image
             fin = depth[np.isfinite(depth)]
             reach = float(fin.max()) * 4.0 if len(fin) else 0.0
-        if 0 < max_range < reach:
-            reach = float(max_range)
         check_extent(T[:3, 3], reach + self.resolution, self.resolution, "depth camera")
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
         return depth_image_rays(
