@@ -65,10 +65,10 @@ def test_ground_truth_that_cannot_be_written_leaves_both_as_they_were(tmp_path, 
     assert run(scen, "-o", out, "-q").exit_code == 0
     before = files(h)
 
-    def full(path, data):
+    def full(path, simulator):
         raise OSError(errno.ENOSPC, "No space left on device", str(path))
 
-    monkeypatch.setattr(sim, "_stage", full)
+    monkeypatch.setattr(sim, "_write_ground_truth", full)
     res = run(scen, "-o", out, "-q", "--seed", "7")  # another seed: a different log
     one_error_line(res, "ground_truth.json", "No space left on device")
     assert files(h) == before

@@ -16,18 +16,17 @@ a byte-identical log.
 
 from __future__ import annotations
 
-import contextlib
 import heapq
 import json
 import math
 import os
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import atomic_path
 from .logwriter import LogWriter
 from .scenario import Scenario
 from .scene import World, active, door_leaf, door_motion, person_at, robot_pose
@@ -417,22 +416,8 @@ def _check_outputs(out: Path, gt: Path, given: bool) -> None:
         raise InputError(f"{gt_label}: is the log -o {out} or inside it; give another file name")
 
 
-def _stage(path: Path, data: bytes) -> Path:
-    """Write ``data`` to a temporary file beside ``path`` (normal permissions); return it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{path.suffix}", dir=path.parent)
-    tmp_path = Path(tmp)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp_path, 0o666 & ~mask)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            tmp_path.unlink()
-        raise
-    return tmp_path
+def _write_ground_truth(path: Path, sim: Simulator) -> None:
+    path.write_bytes((json.dumps(sim.ground_truth(), indent=1) + "\n").encode())
 
 
 def simulate(
@@ -444,23 +429,18 @@ def simulate(
     gt_path = Path(ground_truth) if ground_truth is not None else out.parent / "ground_truth.json"
     _check_outputs(out, gt_path, ground_truth is not None)
     sim = Simulator(sc)
-    gt_tmp = None
-    try:
-        with LogWriter(out, fmt) as w:
-            for topic, msgtype, t_ns, fields in sim.messages():
-                w.write(topic, msgtype, t_ns, fields, latching=topic == "/tf_static")
-                if progress is not None:
-                    progress((t_ns - _stamp(sc, 0.0)) / NS, sc.duration)
-            counts = dict(w.counts)
-            # the ground truth is staged before the log is renamed into place, so that a failure
-            # writing either leaves both targets as they were
-            gt_tmp = _stage(gt_path, (json.dumps(sim.ground_truth(), indent=1) + "\n").encode())
-        os.replace(gt_tmp, gt_path)
-    except BaseException:
-        if gt_tmp is not None:
-            with contextlib.suppress(OSError):
-                gt_tmp.unlink()
-        raise
+    # the ground truth is staged before the log is renamed into place and renamed after it, so
+    # that a failure writing either leaves both targets as they were
+    with atomic_path(gt_path) as gt_tmp, LogWriter(out, fmt) as w:
+        for topic, msgtype, t_ns, fields in sim.messages():
+            w.write(topic, msgtype, t_ns, fields, latching=topic == "/tf_static")
+            if progress is not None:
+                progress((t_ns - _stamp(sc, 0.0)) / NS, sc.duration)
+        counts = dict(w.counts)
+        try:
+            _write_ground_truth(gt_tmp, sim)
+        except OSError as err:  # name the file the user asked for, not the temporary one
+            raise OSError(err.errno, err.strerror, str(gt_path)) from None
     return {
         "log": str(out),
         "format": fmt,
