@@ -94,6 +94,51 @@ def test_fused_depth_kernel_equals_serial_steps(encoding, dedupe, max_range):
         assert np.array_equal(m1.O.channel("logodds"), m2.O.channel("logodds"))
 
 
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+@pytest.mark.parametrize("dedupe", [True, False])
+@pytest.mark.parametrize("max_range", [1.6, 4.0, 0.0])
+def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, dedupe, max_range):
+    """A camera's view of a floor and a wall (2 mm noise, holes): neighbouring pixels end in the
+    same voxel, so the kernel's shortcuts (the pixels before and above) carry most pixels, and
+    with max_range 1.6 m most of the wall is cut. Still bit for bit the serial steps' rays."""
+    rng = np.random.default_rng(5)
+    h, w = 96, 128
+    f, cx, cy = 300.0, 63.5, 47.5
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    ray_y = (v - cy) / f  # optical frame: y down; the floor is y = 0.4 m, the wall z = 3 m
+    z = np.where(ray_y > 0.4 / 3.0, 0.4 / np.maximum(ray_y, 1e-9), 3.0)
+    z = z + rng.normal(0.0, 0.002, size=z.shape)
+    holes = rng.random((h, w)) < 0.05
+    if encoding == "16UC1":
+        raw = np.round(z * 1000).astype(np.uint16)
+        raw[holes] = 0
+        depth = raw.astype(np.float32) * np.float32(0.001)
+        depth[holes] = np.nan
+    else:
+        raw = z.astype(np.float32)
+        raw[holes] = np.nan
+        depth = raw.copy()
+    for trial in range(3):
+        T = np.eye(4)  # optical frame (z forward, y down) -> fixed frame (z up), then a small turn
+        T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+        a = 0.3 * trial
+        T[:3, :3] = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]) @ T[:3, :3]
+        T[:3, 3] = [0.37 * trial, -0.21, 0.4]
+        robot = np.eye(4)
+        robot[:3, 3] = [0.37 * trial, -0.21, 0.0]
+        lmap = LayeredMap()
+        lmap.cfg.sensor.ground_tolerance = 0.05
+        pts = depth_to_points(depth, f, f, cx, cy)
+        e1, k1 = lmap.rays(T[:3, 3], transform_points(T, pts), None, max_range, robot, dedupe)
+        e2, k2 = lmap.depth_rays(raw, f, f, cx, cy, T, max_range, robot, dedupe)
+        keep = k1 > 0
+        assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+        kinds = set(np.unique(k2).tolist())  # floor returns clear (ground rule), wall returns hit
+        assert kinds == ({1} if max_range == 1.6 else {1, 2})  # at 1.6 m the wall is cut: no hit
+        if dedupe:
+            assert len(k2) < 0.2 * h * w  # mostly repeats: the shortcuts had work to do
+
+
 def test_fused_depth_kernel_big_endian_and_strided():
     rng = np.random.default_rng(11)
     raw = rng.uniform(300, 5000, size=(40, 60)).astype(np.uint16)

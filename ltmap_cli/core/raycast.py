@@ -33,35 +33,12 @@ STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _classify_one(ox, oy, oz, px, py, pz, ret, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
-    """Kind and end point actually used of one finite end point (the rules of ``classify_rays``)."""
-    k = RAY_HIT if ret else RAY_CLEAR
-    dx, dy, dz = px - ox, py - oy, pz - oz
-    length = np.sqrt(dx * dx + dy * dy + dz * dz)
-    if max_range > 0.0 and length > max_range:
-        s = max_range / length
-        px, py, pz = ox + dx * s, oy + dy * s, oz + dz * s
-        k = RAY_CLEAR
-    if k == RAY_HIT and ground_tol >= 0.0 and abs(pz) <= ground_tol:
-        k = RAY_CLEAR
-    if k == RAY_HIT and use_fp:
-        lx = fp_inv[0, 0] * px + fp_inv[0, 1] * py + fp_inv[0, 2] * pz + fp_inv[0, 3]
-        ly = fp_inv[1, 0] * px + fp_inv[1, 1] * py + fp_inv[1, 2] * pz + fp_inv[1, 3]
-        lz = fp_inv[2, 0] * px + fp_inv[2, 1] * py + fp_inv[2, 2] * pz + fp_inv[2, 3]
-        if fp_min[0] <= lx <= fp_max[0] and fp_min[1] <= ly <= fp_max[1] and fp_min[2] <= lz <= fp_max[2]:
-            k = RAY_CLEAR
-    return k, px, py, pz
-
-
 @njit(cache=True, nogil=True)
 def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
     """Per end point: (end point actually used (N, 3), kind (N,) int8).
 
     ``returns[i]`` is False for a beam that had no return (its point is where clearing stops).
     ``fp_inv`` (3, 4) maps fixed-frame points into the robot frame for the footprint test.
-    The rules are written out here rather than calling ``_classify_one`` (the same arithmetic):
-    numba compiles this loop 5x faster that way.
     """
     n = points.shape[0]
     ends = np.empty((n, 3), dtype=np.float64)
@@ -285,27 +262,30 @@ def dedupe_endpoints(ends, kind, inv_res):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _dedupe_key(ex, ey, ez, kd, inv_res):
-    i = np.int64(np.floor(ex * inv_res)) + (1 << 20)
-    j = np.int64(np.floor(ey * inv_res)) + (1 << 20)
-    k = np.int64(np.floor(ez * inv_res)) + (1 << 20)
-    return ((i << 42) | (j << 21) | k) * 2 + (1 if kd == RAY_HIT else 0)
-
-
-@njit(cache=True, nogil=True, inline="always")
 def _slot_of(packed, mask):
     hh = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
     return np.int64((hh ^ (hh >> np.uint64(31))) & np.uint64(mask))
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _depth_rays_pass(
     depth, unit_mm, fx, fy, cx, cy, T,
     max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp,
     dedupe, inv_res, cap,
 ):  # fmt: skip
     """``depth_image_rays`` with a dedupe set of ``cap`` slots: (ends, kind, True), or
-    (empty, empty, False) when more than cap / 2 end voxels turn up."""
+    (empty, empty, False) when more than cap / 2 end voxels turn up.
+
+    Row by row in two passes. The first has no branches, so the compiler vectorizes it (hence
+    ``error_model="numpy"``: no zero-division checks): every pixel's end point after the
+    max-range cut, its kind and its dedupe key, with the arithmetic of ``classify_rays`` and
+    ``dedupe_endpoints`` (the cut is computed for every pixel and used only beyond max_range). It
+    also marks the pixels whose key equals that of one of the two pixels before it or of the pixel
+    above: those keys are in the dedupe set already, so the pixel adds nothing. The second pass
+    walks the row in order and looks up only the other pixels: the set sees the same keys in the
+    same order minus repeats, so the rays kept (the first per key) are the same, in the same
+    order. About 2.4x faster than one branchy loop over the pixels.
+    """
     h, w = depth.shape
     ends = np.empty((h * w, 3), dtype=np.float64)
     kind = np.empty(h * w, dtype=np.int8)
@@ -321,54 +301,81 @@ def _depth_rays_pass(
     table = np.full(cap, -1, dtype=np.int64)
     mask = cap - 1
     m = 0
-    last = np.int64(-1)  # the two last keys seen (a row crossing a voxel border alternates)
-    last2 = np.int64(-1)
     mm = np.float32(0.001)
     xr = np.empty(w, dtype=np.float64)  # (u - cx) / fx, as depth_to_points computes it
     for u in range(w):
         xr[u] = (np.float64(u) - cx) / fx
     # a ray is cut only beyond max_range: below this squared length it surely is not (no sqrt)
     safe2 = (max_range * (1.0 - 1e-9)) ** 2 if max_range > 0.0 else np.inf
+    use_ground = ground_tol >= 0.0
+    off = np.int64(1 << 20)
+    # row buffers: end point, kind, dedupe key, is a ray; the row above's keys; pixels to look up
+    rx = np.empty(w, dtype=np.float64)
+    ry = np.empty(w, dtype=np.float64)
+    rz = np.empty(w, dtype=np.float64)
+    rkind = np.empty(w, dtype=np.int8)
+    key = np.empty(w, dtype=np.int64)
+    ok = np.zeros(w, dtype=np.bool_)
+    key_up = np.zeros(w, dtype=np.int64)
+    ok_up = np.zeros(w, dtype=np.bool_)
+    look = np.empty(w, dtype=np.bool_)
     for v in range(h):
         yv = (np.float64(v) - cy) / fy
-        for u in range(w):
+        for u in range(w):  # pass 1: no branches
             raw = depth[v, u]
             if unit_mm:
-                if raw == 0:
-                    continue
                 z32 = np.float32(raw) * mm
+                valid = raw != 0
             else:
                 z32 = np.float32(raw)
-                if not (np.isfinite(z32) and z32 > 0):
-                    continue
+                valid = np.isfinite(z32) and z32 > 0
             z = np.float64(z32)
             x = xr[u] * z
             y = yv * z
             px = t00 * x + t01 * y + t02 * z + t03
             py = t10 * x + t11 * y + t12 * z + t13
             pz = t20 * x + t21 * y + t22 * z + t23
-            if not (np.isfinite(px) and np.isfinite(py) and np.isfinite(pz)):
-                continue
+            valid = valid & np.isfinite(px) & np.isfinite(py) & np.isfinite(pz)
             dx, dy, dz = px - ox, py - oy, pz - oz
-            if dx * dx + dy * dy + dz * dz < safe2:  # within range: only the ground / footprint rules
-                kd = RAY_HIT
-                if ground_tol >= 0.0 and abs(pz) <= ground_tol:
-                    kd = RAY_CLEAR
-                elif use_fp:  # the footprint rule of classify_rays, written out (numba compiles it faster)
-                    lx = f00 * px + f01 * py + f02 * pz + f03
-                    ly = f10 * px + f11 * py + f12 * pz + f13
-                    lz = f20 * px + f21 * py + f22 * pz + f23
-                    if bx0 <= lx <= bx1 and by0 <= ly <= by1 and bz0 <= lz <= bz1:
-                        kd = RAY_CLEAR
-            else:
-                kd, px, py, pz = _classify_one(ox, oy, oz, px, py, pz, True, max_range, ground_tol, fp_inv, fp_min,
-                                               fp_max, use_fp)  # fmt: skip
+            d2 = dx * dx + dy * dy + dz * dz
+            safe = d2 < safe2
+            # the max-range cut of classify_rays, computed for every pixel, used beyond max_range
+            length = np.sqrt(d2)
+            cut = (max_range > 0.0) & (length > max_range) & (not safe)
+            sc = max_range / length
+            px = (ox + dx * sc) if cut else px
+            py = (oy + dy * sc) if cut else py
+            pz = (oz + dz * sc) if cut else pz
+            lx = f00 * px + f01 * py + f02 * pz + f03
+            ly = f10 * px + f11 * py + f12 * pz + f13
+            lz = f20 * px + f21 * py + f22 * pz + f23
+            in_fp = use_fp & (bx0 <= lx) & (lx <= bx1) & (by0 <= ly) & (ly <= by1) & (bz0 <= lz) & (lz <= bz1)
+            hit = not ((use_ground & (abs(pz) <= ground_tol)) | in_fp | cut)
+            i = np.int64(np.floor(px * inv_res)) + off
+            j = np.int64(np.floor(py * inv_res)) + off
+            k = np.int64(np.floor(pz * inv_res)) + off
+            rx[u] = px
+            ry[u] = py
+            rz[u] = pz
+            rkind[u] = RAY_HIT if hit else RAY_CLEAR
+            key[u] = ((i << 42) | (j << 21) | k) * 2 + (1 if hit else 0)
+            ok[u] = valid
+        if dedupe:  # pass 1b: pixels whose key is surely in the set already (no branches)
+            for u in range(w):
+                kk = key[u]
+                rep = ok_up[u] and key_up[u] == kk
+                if u >= 1:
+                    rep = rep | (ok[u - 1] and key[u - 1] == kk)
+                if u >= 2:
+                    rep = rep | (ok[u - 2] and key[u - 2] == kk)
+                look[u] = ok[u] and not rep
+        else:
+            look[:] = ok
+        for u in range(w):  # pass 2: in order, the pixels left
+            if not look[u]:
+                continue
+            px, py, pz, kd, packed = rx[u], ry[u], rz[u], rkind[u], key[u]
             if dedupe:
-                packed = _dedupe_key(px, py, pz, kd, inv_res)
-                if packed == last or packed == last2:  # noqa: SIM109 - plain compares for numba
-                    continue
-                last2 = last
-                last = packed
                 s = _slot_of(packed, mask)
                 dup = False
                 while True:
@@ -389,6 +396,8 @@ def _depth_rays_pass(
             ends[m, 2] = pz
             kind[m] = kd
             m += 1
+        key, key_up = key_up, key
+        ok, ok_up = ok_up, ok
     return ends[:m].copy(), kind[:m].copy(), True
 
 
