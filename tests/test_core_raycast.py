@@ -209,3 +209,62 @@ def test_infinite_or_huge_range_max_is_not_refused():
     for max_range in (np.inf, 1e6):
         r = m.integrate([0.0, 0.0, 0.3], pts, [True, True, True], max_range=max_range)
         assert r.hits == 2
+
+
+def _room_frames(m, n=6):
+    """Rays of a few depth frames (a floor and a wall, 2 mm noise) and laser scans of a box room
+    from poses across the room: what a replay integrates."""
+    rng = np.random.default_rng(12)
+    h, w, f = 60, 80, 60.0
+    v, _ = np.mgrid[0:h, 0:w].astype(np.float64)
+    ray_y = (v - 29.5) / f
+    z = np.where(ray_y > 0.5 / 2.5, 0.5 / np.maximum(ray_y, 1e-9), 2.5) + rng.normal(0, 0.002, (h, w))
+    raw = np.round(z * 1000).astype(np.uint16)
+    frames = []
+    for t in range(n):
+        a = 0.4 * t
+        T = np.eye(4)
+        T[:3, :3] = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]]) @ np.array(
+            [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]
+        )
+        T[:3, 3] = [0.11 * t, -0.07 * t, 0.5]
+        frames.append((T[:3, 3].copy(), *m.depth_rays(raw, f, f, 39.5, 29.5, T, 4.0)))
+        ang = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+        rng_m = 2.0 + rng.uniform(0, 1.5, ang.size)
+        o = np.array([0.11 * t, -0.07 * t, 0.3])
+        pts = o + np.stack([rng_m * np.cos(ang), rng_m * np.sin(ang), np.zeros_like(ang)], axis=1)
+        frames.append((o, *m.rays(o, pts, None, 3.0)))
+    return frames
+
+
+def test_updated_voxel_bitmap_gives_the_same_map_as_the_stamps_alone():
+    """integrate_kernel skips the voxels a frame has updated already through a bitmap over the
+    frame's box; the stamps alone decide the same. With the bitmap off, and with storage that
+    runs out in the middle of frames (blocks, tick buffer, the bitmap itself), the map, its block
+    order and the tick buffer are those of the default map, and each voxel is updated once."""
+    from ltmap_cli.core.grid import VoxelGrid
+    from ltmap_cli.core.layers import O_CHANNELS
+
+    ref, off, tight = new_map(), new_map(), new_map()
+    off._seen_meta[8] = 0  # no frame gets the bitmap
+    tight.O = VoxelGrid(R, O_CHANNELS, initial_blocks=1)
+    tight._tb_block, tight._tb_off = tight._tb_block[:3].copy(), tight._tb_off[:3].copy()
+    frames = _room_frames(ref)
+    counts = []
+    for origin, ends, kind in frames:
+        r = [m.integrate_rays(origin, ends, kind) for m in (ref, off, tight)]
+        assert r[0] == r[1] == r[2]
+        counts.append(r[0].hits + r[0].misses)
+    assert ref._seen_meta[0] == 1 and off._seen_meta[0] == 0  # the bitmap was used, and was not
+    n = ref.O.meta[0]
+    assert n > 50 and sum(counts) > 10000
+    for m in (off, tight):
+        assert m.O.meta[0] == n
+        assert np.array_equal(m.O.block_coords[:n], ref.O.block_coords[:n])
+        for ch in ("logodds", "stamp"):
+            assert np.array_equal(m.O.data[ch][:n], ref.O.data[ch][:n])
+        k = int(ref._tb_meta[0])
+        assert int(m._tb_meta[0]) == k
+        assert np.array_equal(m._tb_block[:k], ref._tb_block[:k]) and np.array_equal(m._tb_off[:k], ref._tb_off[:k])
+    # each frame's updates are the distinct voxels it touched: the last frame's stamp count
+    assert int((ref.O.data["stamp"][:n] == ref.frame_id).sum()) == counts[-1]

@@ -24,8 +24,10 @@ from ..errors import CoreError
 from .config import MapConfig
 from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, VoxelGrid, find_block, get_or_add_block, voxel_offset
 from .raycast import (
+    SEEN_MAX_WORDS,
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
+    STATUS_NEED_SEEN,
     classify_rays,
     dedupe_endpoints,
     depth_image_rays,
@@ -465,6 +467,10 @@ class LayeredMap:
         self._tb_block = np.empty(1 << 16, dtype=np.int32)
         self._tb_off = np.empty(1 << 16, dtype=np.int16)
         self._tb_meta = np.zeros(1, dtype=np.int64)
+        # the frame's "updated already" bitmap (raycast._seen_setup), grown on demand
+        self._seen = np.empty(0, dtype=np.uint64)
+        self._seen_meta = np.zeros(9, dtype=np.int64)
+        self._seen_meta[8] = SEEN_MAX_WORDS
         self.static: StaticGrid | None = None
         self.set_static(static)
         self.events = EventLog()
@@ -619,12 +625,14 @@ class LayeredMap:
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
-                phase, start, counters,
+                phase, start, counters, self._seen, self._seen_meta,
             )  # fmt: skip
             if status == STATUS_DONE:
                 break
             if status == STATUS_NEED_BLOCKS:
                 o.grow()
+            elif status == STATUS_NEED_SEEN:
+                self._seen = np.empty(int(self._seen_meta[7]), dtype=np.uint64)
             else:
                 self._grow_tick_buffer()
         return FrameResult(rays=int((kind > 0).sum()), hits=int(counters[0]), misses=int(counters[1]))

@@ -14,7 +14,9 @@ For one frame (sensor origin + end points in the fixed frame):
 A per-voxel ``stamp`` channel holds the id of the last frame that updated the voxel: a voxel is
 updated at most once per frame and a hit wins over a miss (hits go first), which is OctoMap's
 rule without its hash sets. ``stamp == 0`` means never updated (unknown). Every voxel updated
-for the first time in the current tick is appended to the tick buffer for the tick rules.
+for the first time in the current tick is appended to the tick buffer for the tick rules. A
+bitmap over the frame's box answers "updated in this frame already" for the many repeats of a
+dense frame without touching the map (the same answer as the stamps).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ RAY_HIT = 2  # clears up to its end, end voxel is a hit
 STATUS_DONE = 0
 STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
+STATUS_NEED_SEEN = 3
+SEEN_MAX_WORDS = 1 << 21  # 16 MB, 134 M voxels: beyond, a frame goes without the bitmap
 
 
 @njit(cache=True, nogil=True)
@@ -74,16 +78,68 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
 
 
 @njit(cache=True, nogil=True)
+def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
+    """Lay this frame's ``seen`` bitmap over the box of voxels its rays can visit (their ends
+    and the origin, padded) and clear it. ``seen_meta`` = [on, i0, j0, k0, nx, ny, nz, words
+    needed, most words]. Returns False when ``seen`` is too small for the box (the caller grows
+    it); a box of more than the most words (SEEN_MAX_WORDS: rays of hundreds of metres) turns
+    the bitmap off for the frame."""
+    ki0 = np.int64(np.floor(origin[0] * inv_res))
+    kj0 = np.int64(np.floor(origin[1] * inv_res))
+    kk0 = np.int64(np.floor(origin[2] * inv_res))
+    lo_i, hi_i, lo_j, hi_j, lo_k, hi_k = ki0, ki0, kj0, kj0, kk0, kk0
+    for r in range(ends.shape[0]):
+        if kind[r] == RAY_SKIP:
+            continue
+        i = np.int64(np.floor(ends[r, 0] * inv_res))
+        j = np.int64(np.floor(ends[r, 1] * inv_res))
+        k = np.int64(np.floor(ends[r, 2] * inv_res))
+        lo_i = min(lo_i, i)
+        hi_i = max(hi_i, i)
+        lo_j = min(lo_j, j)
+        hi_j = max(hi_j, j)
+        lo_k = min(lo_k, k)
+        hi_k = max(hi_k, k)
+    pad = 4  # a ray may step past its end voxel (the stop rule allows a few steps); beyond: no bit
+    nx, ny, nz = hi_i - lo_i + 1 + 2 * pad, hi_j - lo_j + 1 + 2 * pad, hi_k - lo_k + 1 + 2 * pad
+    words = (nx * ny * nz + 63) >> 6
+    seen_meta[7] = words
+    if words > seen_meta[8]:
+        seen_meta[0] = 0
+        return True
+    if words > seen.shape[0]:
+        return False
+    seen[:words] = 0
+    seen_meta[0] = 1
+    seen_meta[1], seen_meta[2], seen_meta[3] = lo_i - pad, lo_j - pad, lo_k - pad
+    seen_meta[4], seen_meta[5], seen_meta[6] = nx, ny, nz
+    return True
+
+
+@njit(cache=True, nogil=True)
 def integrate_kernel(
     origin, ends, kind, inv_res, res,
     table_keys, table_vals, block_coords, meta, logodds, stamp,
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
-    phase, start, counters,
+    phase, start, counters, seen, seen_meta,
 ):  # fmt: skip
     """Run phases 0 (hits) and 1 (rays) from (phase, start). Returns (status, phase, index);
     on a status other than DONE the caller grows storage and calls again from there (the stamps
-    make a repeated voxel harmless). ``counters`` accumulates [hits applied, misses applied]."""
+    make a repeated voxel harmless). ``counters`` accumulates [hits applied, misses applied].
+
+    ``seen``: a bitmap of the voxels this frame updated (laid out by ``_seen_setup`` when the
+    frame starts, at (phase, start) = (0, 0)): bit set <=> stamp == frame_id. A dense depth frame
+    steps through each voxel about 15 times (every ray passes the voxels near the camera); a
+    repeat costs one bit test in a small array instead of a block lookup and a load from the
+    map's pool. The bit is set only once the voxel is updated, so a return to grow storage
+    leaves it consistent with the stamps."""
+    if phase == 0 and start == 0 and not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
+        return STATUS_NEED_SEEN, 0, 0
+    use_seen = seen_meta[0] != 0
+    si0, sj0, sk0 = seen_meta[1], seen_meta[2], seen_meta[3]
+    snx, sny, snz = seen_meta[4], seen_meta[5], seen_meta[6]
+    usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
@@ -100,6 +156,13 @@ def integrate_kernel(
             i = np.int64(np.floor(ends[r, 0] * inv_res))
             j = np.int64(np.floor(ends[r, 1] * inv_res))
             k = np.int64(np.floor(ends[r, 2] * inv_res))
+            bit = np.int64(-1)
+            if use_seen:
+                li, lj, lk = i - si0, j - sj0, k - sk0
+                if 0 <= li < snx and 0 <= lj < sny and 0 <= lk < snz:
+                    bit = (li * sny + lj) * snz + lk
+                    if (seen[bit >> 6] >> np.uint64(bit & 63)) & np.uint64(1):
+                        continue
             b = get_or_add_block(table_keys, table_vals, block_coords, meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
             if b < 0:
                 tb_meta[0] = n_tb
@@ -120,6 +183,8 @@ def integrate_kernel(
             v = logodds[b, off] + hit_lo32
             logodds[b, off] = lo_max32 if v > lo_max32 else v
             stamp[b, off] = frame_id
+            if bit >= 0:
+                seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
             n_hit += 1
         phase = 1
         start = 0
@@ -172,31 +237,40 @@ def integrate_kernel(
             tdz = big
         max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
         steps = 0
+        lin = ((ci - si0) * sny + (cj - sj0)) * snz + (ck - sk0)  # bit of (ci, cj, ck) when in the box
+        lsx, lsy, lsz = si * sny * snz, sj * snz, sk
         while True:
-            # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss
-            bx, by, bz = ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS
-            if bx != last_bx or by != last_by or bz != last_bz or last_b < 0:
-                last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
-                last_bx, last_by, last_bz = bx, by, bz
-                if last_b < 0:
-                    tb_meta[0] = n_tb
-                    counters[1] += n_miss
-                    return STATUS_NEED_BLOCKS, 1, r
-            off = voxel_offset(ci, cj, ck)
-            st = stamp[last_b, off]
-            if st != frame_id:
-                if st < tick_first:
-                    if n_tb >= tb_cap:
+            # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss, unless this
+            # frame updated it already
+            bit = np.int64(-1)
+            if use_seen and (np.uint64(ci - si0) < usnx) & (np.uint64(cj - sj0) < usny) & (np.uint64(ck - sk0) < usnz):
+                bit = lin
+            if bit < 0 or not (seen[bit >> 6] >> np.uint64(bit & 63)) & np.uint64(1):
+                bx, by, bz = ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS
+                if bx != last_bx or by != last_by or bz != last_bz or last_b < 0:
+                    last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
+                    last_bx, last_by, last_bz = bx, by, bz
+                    if last_b < 0:
                         tb_meta[0] = n_tb
                         counters[1] += n_miss
-                        return STATUS_NEED_TICK_BUFFER, 1, r
-                    tb_block[n_tb] = last_b
-                    tb_off[n_tb] = off
-                    n_tb += 1
-                v = logodds[last_b, off] + miss_lo32
-                logodds[last_b, off] = lo_min32 if v < lo_min32 else v
-                stamp[last_b, off] = frame_id
-                n_miss += 1
+                        return STATUS_NEED_BLOCKS, 1, r
+                off = voxel_offset(ci, cj, ck)
+                st = stamp[last_b, off]
+                if st != frame_id:
+                    if st < tick_first:
+                        if n_tb >= tb_cap:
+                            tb_meta[0] = n_tb
+                            counters[1] += n_miss
+                            return STATUS_NEED_TICK_BUFFER, 1, r
+                        tb_block[n_tb] = last_b
+                        tb_off[n_tb] = off
+                        n_tb += 1
+                    v = logodds[last_b, off] + miss_lo32
+                    logodds[last_b, off] = lo_min32 if v < lo_min32 else v
+                    stamp[last_b, off] = frame_id
+                    n_miss += 1
+                if bit >= 0:
+                    seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
             # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
             if tmx < tmy:
                 dim = 0 if tmx < tmz else 2
@@ -205,12 +279,15 @@ def integrate_kernel(
             if dim == 0:
                 ci += si
                 tmx += tdx
+                lin += lsx
             elif dim == 1:
                 cj += sj
                 tmy += tdy
+                lin += lsy
             else:
                 ck += sk
                 tmz += tdz
+                lin += lsz
             if ci == ei and cj == ej and ck == ek:
                 break
             dist = min(tmx, min(tmy, tmz))
