@@ -330,8 +330,9 @@ def profile_depth(frames: list[Frame]) -> None:
     """Print where ltmap's time goes on depth frames and what end-voxel merging would buy."""
     import ltmap_cli.core.layers as layers_mod
 
-    acc = {"classify": 0.0, "kernel": 0.0}
-    orig = {"classify": layers_mod.classify_rays, "kernel": layers_mod.integrate_kernel}
+    acc = {"classify": 0.0, "voxels": 0.0, "apply": 0.0}
+    orig = {"classify": layers_mod.classify_rays, "voxels": layers_mod.frame_voxels,
+            "apply": layers_mod.apply_voxels_kernel}
 
     def timed(name):
         def call(*a):
@@ -354,12 +355,14 @@ def profile_depth(frames: list[Frame]) -> None:
     for res in (0.05, 0.10):
         steps = sum(int(np.abs(np.floor(f.points / res) - np.floor(f.origin / res)).sum()) for f in frames)
         for max_range in (4.0, 8.0):
-            acc["classify"] = acc["kernel"] = 0.0
-            layers_mod.classify_rays, layers_mod.integrate_kernel = timed("classify"), timed("kernel")
+            acc["classify"] = acc["voxels"] = acc["apply"] = 0.0
+            layers_mod.classify_rays, layers_mod.frame_voxels = timed("classify"), timed("voxels")
+            layers_mod.apply_voxels_kernel = timed("apply")
             try:
                 total, _ = run_ltmap(frames, res, max_range)
             finally:
-                layers_mod.classify_rays, layers_mod.integrate_kernel = orig["classify"], orig["kernel"]
+                layers_mod.classify_rays, layers_mod.frame_voxels = orig["classify"], orig["voxels"]
+                layers_mod.apply_voxels_kernel = orig["apply"]
             t0 = time.perf_counter()
             merged = [merge_end_voxels(f, res, max_range) for f in frames]
             t_merge = time.perf_counter() - t0
@@ -371,7 +374,7 @@ def profile_depth(frames: list[Frame]) -> None:
             disc = octomap_occupied_keys(tree)
             print(
                 f"| {res:.2f} | {max_range:.0f} | {total / n * 1e3:.1f} | {acc['classify'] / n * 1e3:.1f} "
-                f"| {acc['kernel'] / n * 1e3:.1f} | {steps / n / 1e6:.1f} M "
+                f"| {(acc['voxels'] + acc['apply']) / n * 1e3:.1f} | {steps / n / 1e6:.1f} M "
                 f"| {np.mean([len(f.points) for f in merged]):.0f} | {t_merge / n * 1e3:.1f} "
                 f"| {t_merged / n * 1e3:.1f} | {iou(keys_merged, ref):.4f} | {iou(keys_raw, ref):.4f} "
                 f"| {iou(disc, ref):.4f} |"

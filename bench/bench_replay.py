@@ -302,7 +302,7 @@ def main() -> None:
         print(f"    {results[n]['speed']:.2f}x real time ({results[n]['code']})", flush=True)
     print(f"load average after: {os.getloadavg()[0]:.2f}")
     print()
-    stages = ["read", "read_thread", "tf", "rays", "rays_wait", "integrate", "ticks", "projection", "output"]
+    stages = ["read", "read_thread", "tf", "rays", "cast", "rays_wait", "integrate", "ticks", "projection", "output"]
     print("| config | log s | wall s | x real time | " + " | ".join(stages)
           + " | depth frames used | rays | peak MB | map MB |")
     print("|---" * (9 + len(stages)) + "|")

@@ -40,8 +40,9 @@ from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSamp
 
 NS = 1_000_000_000
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
-IN_FLIGHT = 6  # frames whose rays the worker thread may compute ahead of integration
-STAGES = ("warmup", "read", "tf", "rays", "integrate", "ticks", "projection", "output")
+IN_FLIGHT = 8  # frames whose rays and voxels the worker threads may compute ahead of integration
+RAY_WORKERS = 2  # worker threads (at most the machine's cores)
+STAGES = ("warmup", "read", "tf", "rays", "cast", "integrate", "ticks", "projection", "output")
 
 
 @dataclass
@@ -117,15 +118,18 @@ class Replay:
       one fused kernel (``LayeredMap.depth_rays``) instead of points -> transform -> classify ->
       dedupe. Bit for bit the same rays, so the same map.
     - ``threads`` (default on): a reader thread reads and decodes the log ahead of the pipeline,
-      and a worker thread computes the rays of the next frames (numba kernels release the GIL)
-      while the main thread integrates the previous ones into O, strictly in order: frames are
-      integrated, and ticks, snapshots and plans happen, in exactly the serial order.
+      and worker threads (``RAY_WORKERS``, at most one per core) compute the rays of the next
+      frames and cast them (``LayeredMap.frame_voxels``: the voxels each frame updates, in
+      order; numba kernels release the GIL) while the main thread applies the previous frames'
+      voxels to O (``LayeredMap.apply_voxels``), strictly in order: frames are integrated, and
+      ticks, snapshots and plans happen, in exactly the serial order.
 
     The report's ``stage_s`` gives the wall time per stage: ``read`` (reading and decoding the
     log; with the reader thread, the time the pipeline waited for it, and ``read_thread`` its own
-    busy time), ``tf`` (tf buffer and lookups), ``rays`` (points and rays; with the worker, its
-    busy time, and ``rays_wait`` the time integration waited for it), ``integrate`` (ray casting
-    into O), ``ticks`` (tick rules), ``projection`` (P and the virtual scan) and ``output``
+    busy time), ``tf`` (tf buffer and lookups), ``rays`` (points and rays) and ``cast`` (ray
+    casting: the voxels each frame updates), with the workers their busy time summed over the
+    workers, and ``rays_wait`` the time integration waited for them; ``integrate`` (the voxels'
+    updates in O), ``ticks`` (tick rules), ``projection`` (P and the virtual scan) and ``output``
     (snapshots, maps, measurements, replay.mcap); ``warmup`` is the kernels' first calls on a
     throw-away map before the log (numba compiles them after an install, then loads them from its
     disk cache), so that no frame or tick measures it.
@@ -262,7 +266,8 @@ class Replay:
             if self.threads:
                 from concurrent.futures import ThreadPoolExecutor
 
-                self._pool = ThreadPoolExecutor(1, thread_name_prefix="ltmap-rays")
+                workers = max(1, min(RAY_WORKERS, os.cpu_count() or 1))
+                self._pool = ThreadPoolExecutor(workers, thread_name_prefix="ltmap-rays")
             try:
                 for topic, log_ns, item in reader:
                     if isinstance(item, (TfSample, OdometrySample)):
@@ -584,47 +589,52 @@ class Replay:
         self._jobs.append((topic, item, T, robot, self._pool.submit(self._rays, item, T, robot), lookup_s))
         self._drain(IN_FLIGHT)
 
-    def _rays(self, item, T: np.ndarray, robot: np.ndarray | None) -> tuple[np.ndarray, np.ndarray, float]:
-        """(ends, kind, seconds) of one frame: what ``LayeredMap.integrate`` would cast. Reads no
-        map state (runs in the worker thread)."""
+    def _rays(self, item, T: np.ndarray, robot: np.ndarray | None) -> tuple:
+        """What ``LayeredMap.integrate`` would do before touching the map, for one frame: its
+        rays, then its voxels (``frame_voxels``). Returns (hits, misses, rays cast, rays seconds,
+        cast seconds, flying pixels dropped or -1 without the filter). Reads no map state (runs
+        in a worker thread)."""
         t0 = time.perf_counter()
         sc = self.cfg.map.sensor
         lmap = self.lmap
         rc = self.cfg.replay
+        dropped = -1
         if rc.depth_outlier_filter and isinstance(item, (DepthFrame, RawDepthFrame)):
-            item = self._filter_depth(item)
+            item, dropped = self._filter_depth(item)
         if isinstance(item, RawDepthFrame) and self.fast:
             k = item.intrinsics
             ends, kind = lmap.depth_rays(item.raw, k.fx, k.fy, k.cx, k.cy, T, sc.depth_max_range, robot,
                                          dedupe=sc.dedupe_dense)  # fmt: skip
-            return ends, kind, time.perf_counter() - t0
-        dedupe = False
-        if isinstance(item, ScanFrame):
-            pts, rets = scan_to_points(
-                item.ranges, item.angle_min, item.angle_increment, item.range_min, item.range_max,
-                clear_no_return=sc.clear_no_return,
-            )  # fmt: skip
-            max_range = float(item.range_max)
-        elif isinstance(item, (DepthFrame, RawDepthFrame)):
-            k = item.intrinsics
-            pts = depth_to_points(item.depth_m, k.fx, k.fy, k.cx, k.cy)
-            rets = None
-            max_range = sc.depth_max_range
-            dedupe = sc.dedupe_dense
-        elif isinstance(item, CloudFrame):
-            pts = np.asarray(item.points, dtype=np.float64)
-            rets = None
-            max_range = sc.depth_max_range
-            dedupe = sc.dedupe_dense
-        else:  # pragma: no cover - the reader yields only these
-            raise TypeError(type(item).__name__)
-        world = transform_points(T, pts)
-        ends, kind = lmap.rays(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
-        return ends, kind, time.perf_counter() - t0
+        else:
+            dedupe = False
+            if isinstance(item, ScanFrame):
+                pts, rets = scan_to_points(
+                    item.ranges, item.angle_min, item.angle_increment, item.range_min, item.range_max,
+                    clear_no_return=sc.clear_no_return,
+                )  # fmt: skip
+                max_range = float(item.range_max)
+            elif isinstance(item, (DepthFrame, RawDepthFrame)):
+                k = item.intrinsics
+                pts = depth_to_points(item.depth_m, k.fx, k.fy, k.cx, k.cy)
+                rets = None
+                max_range = sc.depth_max_range
+                dedupe = sc.dedupe_dense
+            elif isinstance(item, CloudFrame):
+                pts = np.asarray(item.points, dtype=np.float64)
+                rets = None
+                max_range = sc.depth_max_range
+                dedupe = sc.dedupe_dense
+            else:  # pragma: no cover - the reader yields only these
+                raise TypeError(type(item).__name__)
+            world = transform_points(T, pts)
+            ends, kind = lmap.rays(T[:3, 3], world, rets, max_range=max_range, robot_pose=robot, dedupe=dedupe)
+        t1 = time.perf_counter()
+        hits, misses = lmap.frame_voxels(T[:3, 3], ends, kind)
+        return hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped
 
-    def _filter_depth(self, item) -> DepthFrame:
-        """The frame with its flying pixels set invalid (NaN); counted in the report. Runs in the
-        single rays worker, so the counters have one writer."""
+    def _filter_depth(self, item) -> tuple[DepthFrame, int]:
+        """The frame with its flying pixels set invalid (NaN), and how many (counted in the
+        report by the main thread: this runs in a worker)."""
         from .filters import flying_pixel_mask
 
         rc = self.cfg.replay
@@ -633,9 +643,7 @@ class Replay:
         drop = flying_pixel_mask(depth, k.fx, k.fy, k.cx, k.cy, radius=rc.depth_outlier_radius,
                                  min_neighbors=rc.depth_outlier_min_neighbors)  # fmt: skip
         depth[drop] = np.nan
-        self.counts.depth_filtered_frames += 1
-        self.counts.depth_filtered_pixels += int(drop.sum())
-        return DepthFrame(item.stamp_ns, item.frame_id, depth, k, item.topic)
+        return DepthFrame(item.stamp_ns, item.frame_id, depth, k, item.topic), int(drop.sum())
 
     def _drain(self, keep: int) -> None:
         """Integrate queued frames in order until at most ``keep`` are left (and none whose rays
@@ -656,13 +664,17 @@ class Replay:
             t0 = time.perf_counter()
             rays = rays.result()
             stage["rays_wait"] += time.perf_counter() - t0
-        ends, kind, rays_s = rays
+        hits, misses, n_rays, rays_s, cast_s, dropped = rays
         stage["rays"] += rays_s
+        stage["cast"] += cast_s
         t0 = time.perf_counter()
-        r = self.lmap.integrate_rays(T[:3, 3], ends, kind)
+        r = self.lmap.apply_voxels(hits, misses, n_rays)
         integrate_s = time.perf_counter() - t0
         stage["integrate"] += integrate_s
         c = self.counts
+        if dropped >= 0:
+            c.depth_filtered_frames += 1
+            c.depth_filtered_pixels += dropped
         c.used[topic] += 1
         c.rays += r.rays
         self._last_stamp = max(getattr(self, "_last_stamp", 0), item.stamp_ns)
@@ -677,7 +689,7 @@ class Replay:
             self._publish_fused_scan(item, T)
             fused_s = time.perf_counter() - t0
             stage["projection"] += fused_s
-        c.frame_ms.setdefault(topic, []).append((lookup_s + rays_s + integrate_s + fused_s) * 1e3)
+        c.frame_ms.setdefault(topic, []).append((lookup_s + rays_s + cast_s + integrate_s + fused_s) * 1e3)
         c.stamps.setdefault(topic, []).append(item.stamp_ns)
 
     # ------------------------------------------------------------------------------------

@@ -238,24 +238,28 @@ def _room_frames(m, n=6):
 
 
 def test_updated_voxel_bitmap_gives_the_same_map_as_the_stamps_alone():
-    """integrate_kernel skips the voxels a frame has updated already through a bitmap over the
-    frame's box; the stamps alone decide the same. With the bitmap off, and with storage that
-    runs out in the middle of frames (blocks, tick buffer, the bitmap itself), the map, its block
-    order and the tick buffer are those of the default map, and each voxel is updated once."""
+    """frame_voxels drops the voxels a frame has updated already through a bitmap over the
+    frame's box; without it apply_voxels drops them by their stamps, and decides the same. With
+    the bitmap off, and with storage that runs out in the middle of frames (blocks, tick buffer,
+    the bitmap and the miss buffer), the map, its block order and the tick buffer are those of
+    the default map, and each voxel is updated once."""
     from ltmap_cli.core.grid import VoxelGrid
     from ltmap_cli.core.layers import O_CHANNELS
 
     ref, off, tight = new_map(), new_map(), new_map()
-    off._seen_meta[8] = 0  # no frame gets the bitmap
+    off.seen_max_words = 0  # no frame gets the bitmap
     tight.O = VoxelGrid(R, O_CHANNELS, initial_blocks=1)
     tight._tb_block, tight._tb_off = tight._tb_block[:3].copy(), tight._tb_off[:3].copy()
+    tight._scratch.seen = np.empty(1, dtype=np.uint64)  # and frame_voxels' bitmap and miss buffer
+    tight._scratch.meta = np.zeros(9, dtype=np.int64)
+    tight._scratch.misses = np.empty(3, dtype=np.int64)
     frames = _room_frames(ref)
     counts = []
     for origin, ends, kind in frames:
         r = [m.integrate_rays(origin, ends, kind) for m in (ref, off, tight)]
         assert r[0] == r[1] == r[2]
         counts.append(r[0].hits + r[0].misses)
-    assert ref._seen_meta[0] == 1 and off._seen_meta[0] == 0  # the bitmap was used, and was not
+    assert ref._scratch.meta[0] == 1 and off._scratch.meta[0] == 0  # the bitmap was used, and was not
     n = ref.O.meta[0]
     assert n > 50 and sum(counts) > 10000
     for m in (off, tight):

@@ -139,6 +139,27 @@ def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, ded
             assert len(k2) < 0.2 * h * w  # mostly repeats: the shortcuts had work to do
 
 
+def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
+    """Images 1 to 7 pixels wide (every pixel near a row's end, where the kernel looks at fewer
+    neighbours), of a smooth wall: still the serial steps' rays."""
+    rng = np.random.default_rng(9)
+    for w in range(1, 8):
+        h = 40
+        z = 2.0 + 0.002 * np.arange(h)[:, None] + rng.normal(0, 0.001, (h, w))
+        raw = np.round(z * 1000).astype(np.uint16)
+        raw[rng.random((h, w)) < 0.1] = 0
+        depth = raw.astype(np.float32) * np.float32(0.001)
+        depth[raw == 0] = np.nan
+        T = _pose(rng)
+        lmap = LayeredMap()
+        pts = depth_to_points(depth, 200.0, 200.0, (w - 1) / 2, 19.5)
+        e1, k1 = lmap.rays(T[:3, 3], transform_points(T, pts), None, 8.0, None, True)
+        e2, k2 = lmap.depth_rays(raw, 200.0, 200.0, (w - 1) / 2, 19.5, T, 8.0, None, True)
+        keep = k1 > 0
+        assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+        assert 0 < len(k2) < (raw > 0).sum()
+
+
 def test_fused_depth_kernel_big_endian_and_strided():
     rng = np.random.default_rng(11)
     raw = rng.uniform(300, 5000, size=(40, 60)).astype(np.uint16)

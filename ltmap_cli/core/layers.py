@@ -15,6 +15,7 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,11 +28,11 @@ from .raycast import (
     SEEN_MAX_WORDS,
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
-    STATUS_NEED_SEEN,
+    apply_voxels_kernel,
     classify_rays,
     dedupe_endpoints,
     depth_image_rays,
-    integrate_kernel,
+    frame_voxels,
 )
 
 O_CHANNELS = {"logodds": (np.float32, 0.0), "stamp": (np.int32, 0)}
@@ -467,10 +468,9 @@ class LayeredMap:
         self._tb_block = np.empty(1 << 16, dtype=np.int32)
         self._tb_off = np.empty(1 << 16, dtype=np.int16)
         self._tb_meta = np.zeros(1, dtype=np.int64)
-        # the frame's "updated already" bitmap (raycast._seen_setup), grown on demand
-        self._seen = np.empty(0, dtype=np.uint64)
-        self._seen_meta = np.zeros(9, dtype=np.int64)
-        self._seen_meta[8] = SEEN_MAX_WORDS
+        # per thread: the frame's "updated already" bitmap of frame_voxels, grown on demand
+        self._scratch = threading.local()
+        self.seen_max_words = SEEN_MAX_WORDS  # a frame whose box needs more goes without it
         self.static: StaticGrid | None = None
         self.set_static(static)
         self.events = EventLog()
@@ -612,30 +612,55 @@ class LayeredMap:
         return self.integrate_rays(origin, ends, kind)
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
-        """Fuse rays from ``rays`` or ``depth_rays`` into O (the stateful half of ``integrate``)."""
+        """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(frame_voxels(...))``."""
+        hits, misses = self.frame_voxels(origin, ends, kind)
+        return self.apply_voxels(hits, misses, int((kind > 0).sum()))
+
+    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The voxels these rays update, each once, in update order: (hits, misses), packed keys
+        (``core.raycast.frame_voxels``: the DDA). Reads no map state, so it may run in other
+        threads than ``apply_voxels`` (each thread has its own scratch bitmap)."""
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
+        scratch = self._scratch
+        if not hasattr(scratch, "seen"):
+            scratch.seen = np.empty(0, dtype=np.uint64)
+            scratch.meta = np.zeros(9, dtype=np.int64)
+            scratch.misses = np.empty(1 << 16, dtype=np.int64)
+        scratch.meta[8] = self.seen_max_words
+        inv_res = 1.0 / self.resolution
+        while True:
+            hits, misses, ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, scratch.meta,
+                                            scratch.misses)  # fmt: skip
+            if ok:
+                return hits, misses.copy()
+            if len(scratch.seen) < scratch.meta[7] <= scratch.meta[8]:
+                scratch.seen = np.empty(int(scratch.meta[7]), dtype=np.uint64)
+            else:
+                scratch.misses = np.empty(2 * len(scratch.misses), dtype=np.int64)
+
+    def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0) -> FrameResult:
+        """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's
+        stateful half, in the thread that owns the map."""
         sc = self.cfg.sensor
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         phase, start = 0, 0
         while True:
             o = self.O
-            status, phase, start = integrate_kernel(
-                origin, ends, kind, 1.0 / self.resolution, self.resolution,
+            status, phase, start = apply_voxels_kernel(
+                hits, misses,
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
-                phase, start, counters, self._seen, self._seen_meta,
+                phase, start, counters,
             )  # fmt: skip
             if status == STATUS_DONE:
                 break
             if status == STATUS_NEED_BLOCKS:
                 o.grow()
-            elif status == STATUS_NEED_SEEN:
-                self._seen = np.empty(int(self._seen_meta[7]), dtype=np.uint64)
             else:
                 self._grow_tick_buffer()
-        return FrameResult(rays=int((kind > 0).sum()), hits=int(counters[0]), misses=int(counters[1]))
+        return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
 
     def _grow_tick_buffer(self) -> None:
         n = len(self._tb_block) * 2

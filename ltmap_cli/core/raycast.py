@@ -11,12 +11,14 @@ For one frame (sensor origin + end points in the fixed frame):
    (origin voxel included, end voxel excluded, same tie breaking and stop rule); each voxel not
    yet updated in this frame gets the miss log-odds.
 
-A per-voxel ``stamp`` channel holds the id of the last frame that updated the voxel: a voxel is
+A frame is cast in two halves. ``frame_voxels`` (reads no map state: it may run in worker
+threads) lists the voxels steps 2 and 3 update, each once, in the order they update them: a
+bitmap over the frame's box drops the repeats (a dense depth frame steps through each voxel about
+15 times). ``apply_voxels_kernel`` (the thread that owns the map) gives them their update. A
+per-voxel ``stamp`` channel holds the id of the last frame that updated the voxel: a voxel is
 updated at most once per frame and a hit wins over a miss (hits go first), which is OctoMap's
 rule without its hash sets. ``stamp == 0`` means never updated (unknown). Every voxel updated
-for the first time in the current tick is appended to the tick buffer for the tick rules. A
-bitmap over the frame's box answers "updated in this frame already" for the many repeats of a
-dense frame without touching the map (the same answer as the stamps).
+for the first time in the current tick is appended to the tick buffer for the tick rules.
 """
 
 from __future__ import annotations
@@ -33,7 +35,6 @@ RAY_HIT = 2  # clears up to its end, end voxel is a hit
 STATUS_DONE = 0
 STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
-STATUS_NEED_SEEN = 3
 SEEN_MAX_WORDS = 1 << 21  # 16 MB, 134 M voxels: beyond, a frame goes without the bitmap
 
 
@@ -116,90 +117,66 @@ def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
     return True
 
 
-@njit(cache=True, nogil=True)
-def integrate_kernel(
-    origin, ends, kind, inv_res, res,
-    table_keys, table_vals, block_coords, meta, logodds, stamp,
-    frame_id, tick_first, tb_block, tb_off, tb_meta,
-    hit_lo, miss_lo, lo_min, lo_max,
-    phase, start, counters, seen, seen_meta,
-):  # fmt: skip
-    """Run phases 0 (hits) and 1 (rays) from (phase, start). Returns (status, phase, index);
-    on a status other than DONE the caller grows storage and calls again from there (the stamps
-    make a repeated voxel harmless). ``counters`` accumulates [hits applied, misses applied].
+KEY_OFFSET = 1 << 20  # voxel keys are packed as 3 x 21 bits, each + 2^20 (core.layers.KEY_LIMIT)
+KEY_MASK = (1 << 21) - 1
 
-    ``seen``: a bitmap of the voxels this frame updated (laid out by ``_seen_setup`` when the
-    frame starts, at (phase, start) = (0, 0)): bit set <=> stamp == frame_id. A dense depth frame
-    steps through each voxel about 15 times (every ray passes the voxels near the camera); a
-    repeat costs one bit test in a small array instead of a block lookup and a load from the
-    map's pool. The bit is set only once the voxel is updated, so a return to grow storage
-    leaves it consistent with the stamps."""
-    if phase == 0 and start == 0 and not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
-        return STATUS_NEED_SEEN, 0, 0
+
+@njit(cache=True, nogil=True, inline="always")
+def pack_key(i, j, k):
+    return ((i + KEY_OFFSET) << 42) | ((j + KEY_OFFSET) << 21) | (k + KEY_OFFSET)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _seen_bit(seen, bit):
+    return (seen[bit >> 6] >> np.uint64(bit & 63)) & np.uint64(1)
+
+
+@njit(cache=True, nogil=True)
+def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, misses):
+    """The voxels one frame updates, in the order OctoMap's per-frame rules update them:
+    (hits, misses, ok), packed keys (``pack_key``; misses: a view of the buffer ``misses``); ok
+    False when ``seen`` (``seen_meta[7]`` words needed) or ``misses`` must grow first.
+
+    Hits first (the end voxel of every hit ray), then the rays are traversed with the Amanatides
+    & Woo DDA exactly as OctoMap's computeRayKeys does (origin voxel included, end voxel
+    excluded, same tie breaking and stop rule); every voxel on a ray is a miss. A voxel is
+    listed once, at its first update: the ``seen`` bitmap over the frame's box (``_seen_setup``)
+    drops the repeats (a dense depth frame steps through each voxel about 15 times, every ray
+    passing the voxels near the camera). A voxel outside the box (or every voxel, when the box
+    is too big for a bitmap) is listed at each step; ``apply_voxels`` drops those repeats with
+    the stamps. Reads no map state, so it may run in another thread than ``apply_voxels``."""
+    if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), False
     use_seen = seen_meta[0] != 0
     si0, sj0, sk0 = seen_meta[1], seen_meta[2], seen_meta[3]
     snx, sny, snz = seen_meta[4], seen_meta[5], seen_meta[6]
     usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
-    hit_lo32 = np.float32(hit_lo)
-    miss_lo32 = np.float32(miss_lo)
-    lo_min32 = np.float32(lo_min)
-    lo_max32 = np.float32(lo_max)
     n = ends.shape[0]
-    n_tb = tb_meta[0]
-    tb_cap = tb_block.shape[0]
+    hits = np.empty(n, dtype=np.int64)
     n_hit = 0
-    n_miss = 0
-    if phase == 0:
-        for r in range(start, n):
-            if kind[r] != RAY_HIT:
+    for r in range(n):
+        if kind[r] != RAY_HIT:
+            continue
+        i = np.int64(np.floor(ends[r, 0] * inv_res))
+        j = np.int64(np.floor(ends[r, 1] * inv_res))
+        k = np.int64(np.floor(ends[r, 2] * inv_res))
+        li, lj, lk = i - si0, j - sj0, k - sk0
+        if use_seen and (np.uint64(li) < usnx) & (np.uint64(lj) < usny) & (np.uint64(lk) < usnz):
+            bit = (li * sny + lj) * snz + lk
+            if _seen_bit(seen, bit):
                 continue
-            i = np.int64(np.floor(ends[r, 0] * inv_res))
-            j = np.int64(np.floor(ends[r, 1] * inv_res))
-            k = np.int64(np.floor(ends[r, 2] * inv_res))
-            bit = np.int64(-1)
-            if use_seen:
-                li, lj, lk = i - si0, j - sj0, k - sk0
-                if 0 <= li < snx and 0 <= lj < sny and 0 <= lk < snz:
-                    bit = (li * sny + lj) * snz + lk
-                    if (seen[bit >> 6] >> np.uint64(bit & 63)) & np.uint64(1):
-                        continue
-            b = get_or_add_block(table_keys, table_vals, block_coords, meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
-            if b < 0:
-                tb_meta[0] = n_tb
-                counters[0] += n_hit
-                return STATUS_NEED_BLOCKS, 0, r
-            off = voxel_offset(i, j, k)
-            st = stamp[b, off]
-            if st == frame_id:
-                continue
-            if st < tick_first:
-                if n_tb >= tb_cap:
-                    tb_meta[0] = n_tb
-                    counters[0] += n_hit
-                    return STATUS_NEED_TICK_BUFFER, 0, r
-                tb_block[n_tb] = b
-                tb_off[n_tb] = off
-                n_tb += 1
-            v = logodds[b, off] + hit_lo32
-            logodds[b, off] = lo_max32 if v > lo_max32 else v
-            stamp[b, off] = frame_id
-            if bit >= 0:
-                seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
-            n_hit += 1
-        phase = 1
-        start = 0
-        counters[0] += n_hit
+            seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
+        hits[n_hit] = pack_key(i, j, k)
+        n_hit += 1
 
+    cap = misses.shape[0]
+    n_miss = 0
     ox, oy, oz = origin[0], origin[1], origin[2]
     ki0 = np.int64(np.floor(ox * inv_res))
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
     big = 1e300
-    last_bx = np.int64(-(1 << 40))
-    last_by = np.int64(0)
-    last_bz = np.int64(0)
-    last_b = np.int64(-1)
-    for r in range(start, n):
+    for r in range(n):
         if kind[r] == RAY_SKIP:
             continue
         ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
@@ -242,35 +219,17 @@ def integrate_kernel(
         while True:
             # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss, unless this
             # frame updated it already
-            bit = np.int64(-1)
+            new = True
             if use_seen and (np.uint64(ci - si0) < usnx) & (np.uint64(cj - sj0) < usny) & (np.uint64(ck - sk0) < usnz):
-                bit = lin
-            if bit < 0 or not (seen[bit >> 6] >> np.uint64(bit & 63)) & np.uint64(1):
-                bx, by, bz = ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS
-                if bx != last_bx or by != last_by or bz != last_bz or last_b < 0:
-                    last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
-                    last_bx, last_by, last_bz = bx, by, bz
-                    if last_b < 0:
-                        tb_meta[0] = n_tb
-                        counters[1] += n_miss
-                        return STATUS_NEED_BLOCKS, 1, r
-                off = voxel_offset(ci, cj, ck)
-                st = stamp[last_b, off]
-                if st != frame_id:
-                    if st < tick_first:
-                        if n_tb >= tb_cap:
-                            tb_meta[0] = n_tb
-                            counters[1] += n_miss
-                            return STATUS_NEED_TICK_BUFFER, 1, r
-                        tb_block[n_tb] = last_b
-                        tb_off[n_tb] = off
-                        n_tb += 1
-                    v = logodds[last_b, off] + miss_lo32
-                    logodds[last_b, off] = lo_min32 if v < lo_min32 else v
-                    stamp[last_b, off] = frame_id
-                    n_miss += 1
-                if bit >= 0:
-                    seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
+                if _seen_bit(seen, lin):
+                    new = False
+                else:
+                    seen[lin >> 6] |= np.uint64(1) << np.uint64(lin & 63)
+            if new:
+                if n_miss >= cap:  # the caller gives a bigger buffer and calls again
+                    return hits[:0], misses[:0], False
+                misses[n_miss] = pack_key(ci, cj, ck)
+                n_miss += 1
             # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
             if tmx < tmy:
                 dim = 0 if tmx < tmz else 2
@@ -296,9 +255,74 @@ def integrate_kernel(
             steps += 1
             if steps > max_steps:
                 break
+    return hits[:n_hit].copy(), misses[:n_miss], True
+
+
+@njit(cache=True, nogil=True)
+def apply_voxels_kernel(
+    hits, misses,
+    table_keys, table_vals, block_coords, meta, logodds, stamp,
+    frame_id, tick_first, tb_block, tb_off, tb_meta,
+    hit_lo, miss_lo, lo_min, lo_max,
+    phase, start, counters,
+):  # fmt: skip
+    """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
+    from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
+    grows storage and calls again from there. A voxel whose stamp is this frame's was updated
+    already (a repeat listed from outside the bitmap's box): it is left alone, so each voxel is
+    updated once per frame and a hit wins over a miss. ``counters`` accumulates [hits applied,
+    misses applied]."""
+    hit_lo32 = np.float32(hit_lo)
+    miss_lo32 = np.float32(miss_lo)
+    lo_min32 = np.float32(lo_min)
+    lo_max32 = np.float32(lo_max)
+    n_tb = tb_meta[0]
+    tb_cap = tb_block.shape[0]
+    last_bx = np.int64(-(1 << 40))
+    last_by = np.int64(0)
+    last_bz = np.int64(0)
+    last_b = np.int64(-1)
+    while phase < 2:
+        keys = hits if phase == 0 else misses
+        lo = hit_lo32 if phase == 0 else miss_lo32
+        n_done = 0
+        for r in range(start, keys.shape[0]):
+            key = keys[r]
+            i = (key >> 42) - KEY_OFFSET
+            j = ((key >> 21) & KEY_MASK) - KEY_OFFSET
+            k = (key & KEY_MASK) - KEY_OFFSET
+            bx, by, bz = i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS
+            if bx != last_bx or by != last_by or bz != last_bz or last_b < 0:
+                last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
+                last_bx, last_by, last_bz = bx, by, bz
+                if last_b < 0:
+                    tb_meta[0] = n_tb
+                    counters[phase] += n_done
+                    return STATUS_NEED_BLOCKS, phase, r
+            off = voxel_offset(i, j, k)
+            st = stamp[last_b, off]
+            if st == frame_id:
+                continue
+            if st < tick_first:
+                if n_tb >= tb_cap:
+                    tb_meta[0] = n_tb
+                    counters[phase] += n_done
+                    return STATUS_NEED_TICK_BUFFER, phase, r
+                tb_block[n_tb] = last_b
+                tb_off[n_tb] = off
+                n_tb += 1
+            v = logodds[last_b, off] + lo
+            if phase == 0:
+                logodds[last_b, off] = lo_max32 if v > lo_max32 else v
+            else:
+                logodds[last_b, off] = lo_min32 if v < lo_min32 else v
+            stamp[last_b, off] = frame_id
+            n_done += 1
+        counters[phase] += n_done
+        phase += 1
+        start = 0
     tb_meta[0] = n_tb
-    counters[1] += n_miss
-    return STATUS_DONE, 1, n
+    return STATUS_DONE, 2, 0
 
 
 @njit(cache=True, nogil=True)
@@ -357,11 +381,12 @@ def _depth_rays_pass(
     ``error_model="numpy"``: no zero-division checks): every pixel's end point after the
     max-range cut, its kind and its dedupe key, with the arithmetic of ``classify_rays`` and
     ``dedupe_endpoints`` (the cut is computed for every pixel and used only beyond max_range). It
-    also marks the pixels whose key equals that of one of the two pixels before it or of the pixel
-    above: those keys are in the dedupe set already, so the pixel adds nothing. The second pass
-    walks the row in order and looks up only the other pixels: the set sees the same keys in the
-    same order minus repeats, so the rays kept (the first per key) are the same, in the same
-    order. About 2.4x faster than one branchy loop over the pixels.
+    also marks the pixels whose key equals that of one of the three pixels before it or of the
+    five nearest above it (near the row's ends: those that exist): those keys are in the dedupe set already, so the pixel adds nothing.
+    The second pass walks the row's other pixels in order (an index list, no branch per pixel)
+    and looks them up: the set sees the same keys in the same order minus repeats, so the rays
+    kept (the first per key) are the same, in the same order. About 4x faster than one branchy
+    loop over the pixels (4.4 -> 1.2 ms for a 640x480 frame of the bench log).
     """
     h, w = depth.shape
     ends = np.empty((h * w, 3), dtype=np.float64)
@@ -396,6 +421,7 @@ def _depth_rays_pass(
     key_up = np.zeros(w, dtype=np.int64)
     ok_up = np.zeros(w, dtype=np.bool_)
     look = np.empty(w, dtype=np.bool_)
+    idx = np.empty(w, dtype=np.int64)
     for v in range(h):
         yv = (np.float64(v) - cy) / fy
         for u in range(w):  # pass 1: no branches
@@ -437,20 +463,31 @@ def _depth_rays_pass(
             rkind[u] = RAY_HIT if hit else RAY_CLEAR
             key[u] = ((i << 42) | (j << 21) | k) * 2 + (1 if hit else 0)
             ok[u] = valid
-        if dedupe:  # pass 1b: pixels whose key is surely in the set already (no branches)
-            for u in range(w):
+        if dedupe:  # pass 1b: pixels whose key is surely in the set already
+            for u in range(3, w - 2):  # every neighbour exists: no branches (vectorized)
                 kk = key[u]
-                rep = ok_up[u] and key_up[u] == kk
-                if u >= 1:
-                    rep = rep | (ok[u - 1] and key[u - 1] == kk)
-                if u >= 2:
-                    rep = rep | (ok[u - 2] and key[u - 2] == kk)
-                look[u] = ok[u] and not rep
+                rep = (ok_up[u] & (key_up[u] == kk)) | (ok[u - 1] & (key[u - 1] == kk)) | (ok[u - 2] & (key[u - 2] == kk))
+                rep = rep | (ok_up[u - 1] & (key_up[u - 1] == kk)) | (ok_up[u + 1] & (key_up[u + 1] == kk))
+                rep = rep | (ok_up[u - 2] & (key_up[u - 2] == kk)) | (ok_up[u + 2] & (key_up[u + 2] == kk))
+                rep = rep | (ok[u - 3] & (key[u - 3] == kk))  # (this order of terms vectorizes best)
+                look[u] = ok[u] & ~rep
+            for e in range(5):  # the row's ends (0, 1, 2, w - 2, w - 1): the pixel above, those before
+                u = e if e < 3 else w - 5 + e
+                if u >= w or u < 0 or (e >= 3 and u < 3):  # out of the row, or done as one of 0, 1, 2
+                    continue
+                kk = key[u]
+                rep = ok_up[u] & (key_up[u] == kk)
+                for d in range(1, min(u, 3) + 1):
+                    rep = rep | (ok[u - d] & (key[u - d] == kk))
+                look[u] = ok[u] & ~rep
         else:
             look[:] = ok
-        for u in range(w):  # pass 2: in order, the pixels left
-            if not look[u]:
-                continue
+        n_look = 0
+        for u in range(w):  # the pixels left, in order (no branch)
+            idx[n_look] = u
+            n_look += np.int64(look[u])
+        for q in range(n_look):  # pass 2: in order, the pixels left
+            u = idx[q]
             px, py, pz, kd, packed = rx[u], ry[u], rz[u], rkind[u], key[u]
             if dedupe:
                 s = _slot_of(packed, mask)
@@ -484,11 +521,11 @@ def depth_image_rays(
     max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp,
     dedupe, inv_res,
 ):  # fmt: skip
-    """One depth image straight to the rays ``integrate_kernel`` casts: (ends (M, 3), kind (M,)).
+    """One depth image straight to the rays ``frame_voxels`` casts: (ends (M, 3), kind (M,)).
 
     Fuses ``depth_metres`` + ``depth_to_points`` + ``transform_points`` + ``classify_rays`` +
     ``dedupe_endpoints`` with the same arithmetic in the same order, so the rays are bit for bit
-    those of the separate steps (minus the RAY_SKIP entries, which ``integrate_kernel`` ignores).
+    those of the separate steps (minus the RAY_SKIP entries, which ``frame_voxels`` ignores).
 
     depth: (H, W) raw pixels, uint16 millimetres (``unit_mm``, 0 invalid) or float32 metres (NaN /
     <= 0 invalid); T: 4x4 optical frame -> fixed frame. The dedupe set is sized by the voxels
