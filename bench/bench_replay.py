@@ -305,7 +305,7 @@ def main() -> None:
     stages = ["read", "read_thread", "tf", "rays", "cast", "rays_wait", "integrate", "ticks", "projection", "output"]
     print("| config | log s | wall s | x real time | " + " | ".join(stages)
           + " | depth frames used | rays | peak MB | map MB |")
-    print("|---" * (9 + len(stages)) + "|")
+    print("|---" * (8 + len(stages)) + "|")
     for n, r in results.items():
         st = r["stage_s"]
         depth = sum(v for k, v in r["frames_used"].items() if "depth" in k)
