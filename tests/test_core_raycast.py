@@ -244,25 +244,36 @@ def test_updated_voxel_bitmap_gives_the_same_map_as_the_stamps_alone():
     the bitmap and the miss buffer), the map, its block order and the tick buffer are those of
     the default map, and each voxel is updated once."""
     from ltmap_cli.core.grid import VoxelGrid
-    from ltmap_cli.core.layers import O_CHANNELS
+    from ltmap_cli.core.layers import O_CHANNELS, _sparse_bitmap
 
-    ref, off, tight = new_map(), new_map(), new_map()
-    off.seen_max_words = 0  # no frame gets the bitmap
+    ref, off, tight, tight_off = new_map(), new_map(), new_map(), new_map()
+    off.seen_max_words = 0  # no frame gets the dense bitmap: the sparse one takes every voxel
+    tight_off.seen_max_words = 0
+    tight_off.O = VoxelGrid(R, O_CHANNELS, initial_blocks=1)
+    tight_off._scratch.seen = np.empty(0, dtype=np.uint64)
+    tight_off._scratch.meta = np.zeros(12, dtype=np.int64)
+    tight_off._scratch.misses = np.empty(3, dtype=np.int64)
+    tight_off._scratch.sparse = _sparse_bitmap(2)  # full at once: grown in the middle of frames
     tight.O = VoxelGrid(R, O_CHANNELS, initial_blocks=1)
     tight._tb_block, tight._tb_off = tight._tb_block[:3].copy(), tight._tb_off[:3].copy()
     tight._scratch.seen = np.empty(1, dtype=np.uint64)  # and frame_voxels' bitmap and miss buffer
-    tight._scratch.meta = np.zeros(9, dtype=np.int64)
+    tight._scratch.meta = np.zeros(12, dtype=np.int64)
+    tight._scratch.sparse = _sparse_bitmap(2)
     tight._scratch.misses = np.empty(3, dtype=np.int64)
     frames = _room_frames(ref)
     counts = []
     for origin, ends, kind in frames:
-        r = [m.integrate_rays(origin, ends, kind) for m in (ref, off, tight)]
-        assert r[0] == r[1] == r[2]
+        # either bitmap lists each voxel once: no repeats for apply_voxels to drop
+        for m in (ref, off):
+            hits, misses = m.frame_voxels(origin, ends, kind)
+            assert len(np.unique(misses)) == len(misses) and not np.isin(misses, hits).any()
+        r = [m.integrate_rays(origin, ends, kind) for m in (ref, off, tight, tight_off)]
+        assert r[0] == r[1] == r[2] == r[3]
         counts.append(r[0].hits + r[0].misses)
     assert ref._scratch.meta[0] == 1 and off._scratch.meta[0] == 0  # the bitmap was used, and was not
     n = ref.O.meta[0]
     assert n > 50 and sum(counts) > 10000
-    for m in (off, tight):
+    for m in (off, tight, tight_off):
         assert m.O.meta[0] == n
         assert np.array_equal(m.O.block_coords[:n], ref.O.block_coords[:n])
         for ch in ("logodds", "stamp"):
@@ -272,3 +283,28 @@ def test_updated_voxel_bitmap_gives_the_same_map_as_the_stamps_alone():
         assert np.array_equal(m._tb_block[:k], ref._tb_block[:k]) and np.array_equal(m._tb_off[:k], ref._tb_off[:k])
     # each frame's updates are the distinct voxels it touched: the last frame's stamp count
     assert int((ref.O.data["stamp"][:n] == ref.frame_id).sum()) == counts[-1]
+
+
+def test_frame_boxes_beyond_a_dense_bitmap_and_voxel_keys_beyond_their_extent():
+    """Rays to opposite corners of the key extent: the frame's box (2^21 voxels a side, 2^63
+    voxels) is far too big for a dense bitmap, and computing its size must not overflow (it
+    wrapped negative and passed as small: writes outside the bitmap). Such a frame goes to the
+    sparse bitmap (the bitmap test above checks it lists each voxel once). Rays whose voxels lie
+    beyond the keys' extent are refused, not wrapped into other keys."""
+    from ltmap_cli.core.layers import KEY_LIMIT
+    from ltmap_cli.core.raycast import _seen_setup
+    from ltmap_cli.errors import CoreError
+
+    far = (KEY_LIMIT - 2) * R
+    ends = np.array([[far, far, far], [-far, -far, -far]])
+    meta = np.zeros(12, dtype=np.int64)
+    meta[8] = 1 << 21
+    assert _seen_setup(np.zeros(3), ends, np.array([1, 1], dtype=np.int8), 1 / R, np.empty(8, np.uint64), meta)
+    assert meta[0] == 0 and (meta[4:7] >= 2 * (KEY_LIMIT - 2) + 9).all()  # dense off; the box recorded
+
+    fine = new_map()
+    fine.cfg.resolution = 0.01
+    fine.resolution = 0.01
+    x = (KEY_LIMIT - 50) * 0.01
+    with pytest.raises(CoreError, match="beyond"):
+        fine.integrate_rays([x, 0.0, 0.0], np.array([[x + 1.0, 0.0, 0.0]]), np.array([2], dtype=np.int8))

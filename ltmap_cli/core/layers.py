@@ -33,6 +33,7 @@ from .raycast import (
     dedupe_endpoints,
     depth_image_rays,
     frame_voxels,
+    sparse_grown,
 )
 
 O_CHANNELS = {"logodds": (np.float32, 0.0), "stamp": (np.int32, 0)}
@@ -451,6 +452,13 @@ def check_extent(origin: np.ndarray, reach: float, resolution: float, what: str 
         )
 
 
+def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
+    """frame_voxels' sparse bitmap for up to slots / 2 blocks: hash keys, generations (0: empty
+    in every frame), block indices, 8 words of bits per block."""
+    return (np.zeros(slots, dtype=np.int64), np.zeros(slots, dtype=np.int64), np.zeros(slots, dtype=np.int64),
+            np.zeros(4 * slots, dtype=np.uint64))  # fmt: skip
+
+
 class LayeredMap:
     """S, O, ST and LT on one voxel lattice, with SPEC 2's update rules."""
 
@@ -624,19 +632,35 @@ class LayeredMap:
         scratch = self._scratch
         if not hasattr(scratch, "seen"):
             scratch.seen = np.empty(0, dtype=np.uint64)
-            scratch.meta = np.zeros(9, dtype=np.int64)
+            scratch.meta = np.zeros(12, dtype=np.int64)
             scratch.misses = np.empty(1 << 16, dtype=np.int64)
-        scratch.meta[8] = self.seen_max_words
+            scratch.sparse = _sparse_bitmap(1 << 10)
+        meta = scratch.meta
+        meta[8] = self.seen_max_words
         inv_res = 1.0 / self.resolution
+        hits = np.empty(len(kind), dtype=np.int64)
+        state = np.zeros(4, dtype=np.int64)  # [phase, ray, hits listed, misses listed]
         while True:
-            hits, misses, ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, scratch.meta,
-                                            scratch.misses)  # fmt: skip
+            ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, meta, hits, scratch.misses,
+                              *scratch.sparse, state)  # fmt: skip
+            if state[0] > 0:  # the box is known
+                lo, hi = meta[1:4] + 4, meta[1:4] + meta[4:7] - 5  # the box of the ends and the origin
+                if int(lo.min()) < -KEY_LIMIT or int(hi.max()) > KEY_LIMIT:
+                    raise CoreError(
+                        f"rays from ({origin[0]:.1f}, {origin[1]:.1f}, {origin[2]:.1f}) m reach voxels beyond "
+                        f"+-{KEY_LIMIT} keys (+-{KEY_LIMIT * self.resolution / 1000:.1f} km at {self.resolution:g} m), "
+                        "the extent of ltmap's voxel keys; use a fixed frame near the robot or a coarser resolution"
+                    )
             if ok:
-                return hits, misses.copy()
-            if len(scratch.seen) < scratch.meta[7] <= scratch.meta[8]:
-                scratch.seen = np.empty(int(scratch.meta[7]), dtype=np.uint64)
+                return hits[: state[2]], scratch.misses[: state[3]].copy()
+            if meta[11] == 1:  # before any voxel is listed: the frame starts again
+                scratch.seen = np.empty(int(meta[7]), dtype=np.uint64)
+            elif meta[11] == 2:  # go on where it stopped, with what is listed
+                bigger = np.empty(2 * len(scratch.misses), dtype=np.int64)
+                bigger[: state[3]] = scratch.misses[: state[3]]
+                scratch.misses = bigger
             else:
-                scratch.misses = np.empty(2 * len(scratch.misses), dtype=np.int64)
+                scratch.sparse = sparse_grown(*scratch.sparse, meta[10], 4 * len(scratch.sparse[0]))
 
     def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0) -> FrameResult:
         """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's

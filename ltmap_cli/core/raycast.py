@@ -35,7 +35,7 @@ RAY_HIT = 2  # clears up to its end, end voxel is a hit
 STATUS_DONE = 0
 STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
-SEEN_MAX_WORDS = 1 << 21  # 16 MB, 134 M voxels: beyond, a frame goes without the bitmap
+SEEN_MAX_WORDS = 1 << 23  # 64 MB, 537 M voxels: a frame whose box is bigger takes the sparse bitmap
 
 
 @njit(cache=True, nogil=True)
@@ -78,13 +78,23 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
     return ends, kind
 
 
+KEY_OFFSET = 1 << 20  # voxel keys are packed as 3 x 21 bits, each + 2^20 (core.layers.KEY_LIMIT)
+KEY_MASK = (1 << 21) - 1
+
+
+@njit(cache=True, nogil=True, inline="always")
+def pack_key(i, j, k):
+    return ((i + KEY_OFFSET) << 42) | ((j + KEY_OFFSET) << 21) | (k + KEY_OFFSET)
+
+
 @njit(cache=True, nogil=True)
 def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
     """Lay this frame's ``seen`` bitmap over the box of voxels its rays can visit (their ends
-    and the origin, padded) and clear it. ``seen_meta`` = [on, i0, j0, k0, nx, ny, nz, words
-    needed, most words]. Returns False when ``seen`` is too small for the box (the caller grows
-    it); a box of more than the most words (SEEN_MAX_WORDS: rays of hundreds of metres) turns
-    the bitmap off for the frame."""
+    and the origin, padded) and clear it. ``seen_meta`` = [dense on, i0, j0, k0, nx, ny, nz,
+    words needed, most words, sparse blocks used, sparse generation, what to grow]; the box
+    (i0.., nx..) is recorded either way. Returns False when ``seen`` is too small for the box
+    (the caller grows it); a box of more than the most words (SEEN_MAX_WORDS: rays of hundreds
+    of metres) leaves the dense bitmap off for the frame: the sparse one takes every voxel."""
     ki0 = np.int64(np.floor(origin[0] * inv_res))
     kj0 = np.int64(np.floor(origin[1] * inv_res))
     kk0 = np.int64(np.floor(origin[2] * inv_res))
@@ -101,29 +111,87 @@ def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
         hi_j = max(hi_j, j)
         lo_k = min(lo_k, k)
         hi_k = max(hi_k, k)
-    pad = 4  # a ray may step past its end voxel (the stop rule allows a few steps); beyond: no bit
+    pad = 4  # a ray may step past its end voxel (the stop rule allows a few steps); beyond: sparse
     nx, ny, nz = hi_i - lo_i + 1 + 2 * pad, hi_j - lo_j + 1 + 2 * pad, hi_k - lo_k + 1 + 2 * pad
+    seen_meta[1], seen_meta[2], seen_meta[3] = lo_i - pad, lo_j - pad, lo_k - pad
+    seen_meta[4], seen_meta[5], seen_meta[6] = nx, ny, nz
+    words_f = (np.float64(nx) * np.float64(ny) * np.float64(nz) + 63.0) / 64.0  # no int64 overflow
+    if words_f > np.float64(seen_meta[8]):
+        seen_meta[0] = 0
+        seen_meta[7] = 0
+        return True
     words = (nx * ny * nz + 63) >> 6
     seen_meta[7] = words
-    if words > seen_meta[8]:
-        seen_meta[0] = 0
-        return True
     if words > seen.shape[0]:
         return False
     seen[:words] = 0
     seen_meta[0] = 1
-    seen_meta[1], seen_meta[2], seen_meta[3] = lo_i - pad, lo_j - pad, lo_k - pad
-    seen_meta[4], seen_meta[5], seen_meta[6] = nx, ny, nz
     return True
 
 
-KEY_OFFSET = 1 << 20  # voxel keys are packed as 3 x 21 bits, each + 2^20 (core.layers.KEY_LIMIT)
-KEY_MASK = (1 << 21) - 1
+@njit(cache=True, nogil=True, inline="always")
+def _sparse_visit(i, j, k, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, cache):
+    """Voxel (i, j, k) in the sparse bitmap: 1 and its bit set when this frame has not listed it
+    yet, 0 when it has, -1 when the bitmap is full. ``cache`` = [bx, by, bz, slot] of the last
+    block looked up."""
+    bx, by, bz = i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS
+    if bx != cache[0] or by != cache[1] or bz != cache[2] or cache[3] < 0:
+        cache[3] = _sparse_slot(bx, by, bz, sp_keys, sp_gen, sp_vals, sp_words, seen_meta)
+        cache[0], cache[1], cache[2] = bx, by, bz
+        if cache[3] < 0:
+            return -1
+    off = voxel_offset(i, j, k)
+    w = 8 * cache[3] + (off >> 6)
+    bm = np.uint64(1) << np.uint64(off & 63)
+    if sp_words[w] & bm:
+        return 0
+    sp_words[w] |= bm
+    return 1
+
+
+@njit(cache=True, nogil=True)
+def sparse_grown(sp_keys, sp_gen, sp_vals, sp_words, gen, slots):
+    """The sparse bitmap with ``slots`` hash slots, holding this generation's blocks and bits."""
+    keys = np.zeros(slots, dtype=np.int64)
+    gens = np.zeros(slots, dtype=np.int64)
+    vals = np.zeros(slots, dtype=np.int64)
+    words = np.zeros(4 * slots, dtype=np.uint64)
+    mask = slots - 1
+    for s in range(sp_keys.shape[0]):
+        if sp_gen[s] != gen:
+            continue
+        h = np.uint64(sp_keys[s]) * np.uint64(0x9E3779B97F4A7C15)
+        t = np.int64((h ^ (h >> np.uint64(31))) & np.uint64(mask))
+        while gens[t] == gen:
+            t = (t + 1) & mask
+        keys[t], gens[t], vals[t] = sp_keys[s], gen, sp_vals[s]
+    words[: sp_words.shape[0]] = sp_words
+    return keys, gens, vals, words
 
 
 @njit(cache=True, nogil=True, inline="always")
-def pack_key(i, j, k):
-    return ((i + KEY_OFFSET) << 42) | ((j + KEY_OFFSET) << 21) | (k + KEY_OFFSET)
+def _sparse_slot(bx, by, bz, sp_keys, sp_gen, sp_vals, sp_words, seen_meta):
+    """Slot (8 words: the 512 voxels' bits) of block (bx, by, bz) in the sparse bitmap, a hash
+    of blocks whose entries count only in this frame's generation (nothing to clear per frame);
+    -1 when it is full (the caller grows it)."""
+    mask = sp_keys.shape[0] - 1
+    gen = seen_meta[10]
+    packed = pack_key(bx, by, bz)
+    h = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
+    s = np.int64((h ^ (h >> np.uint64(31))) & np.uint64(mask))
+    while sp_gen[s] == gen:
+        if sp_keys[s] == packed:
+            return sp_vals[s]
+        s = (s + 1) & mask
+    n = seen_meta[9]
+    if 2 * (n + 1) > sp_keys.shape[0] or 8 * (n + 1) > sp_words.shape[0]:
+        return np.int64(-1)
+    sp_gen[s] = gen
+    sp_keys[s] = packed
+    sp_vals[s] = n
+    sp_words[8 * n:8 * n + 8] = 0
+    seen_meta[9] = n + 1
+    return n
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -132,51 +200,85 @@ def _seen_bit(seen, bit):
 
 
 @njit(cache=True, nogil=True)
-def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, misses):
-    """The voxels one frame updates, in the order OctoMap's per-frame rules update them:
-    (hits, misses, ok), packed keys (``pack_key``; misses: a view of the buffer ``misses``); ok
-    False when ``seen`` (``seen_meta[7]`` words needed) or ``misses`` must grow first.
+def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
+                 state):  # fmt: skip
+    """See ``_frame_voxels``: the dense bitmap's loop, or the sparse one's when the frame's box is
+    too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not)."""
+    if state[0] == 0:  # a new frame
+        seen_meta[9] = 0  # a new generation of the sparse bitmap: empty
+        seen_meta[10] += 1
+        if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
+            seen_meta[11] = 1
+            return False
+        state[0] = 1
+    seen_meta[11] = 0
+    if seen_meta[0] != 0:
+        return _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen,
+                             sp_vals, sp_words, state)  # fmt: skip
+    return _frame_voxels(origin, ends, kind, inv_res, res, None, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals,
+                         sp_words, state)  # fmt: skip
+
+
+@njit(cache=True, nogil=True)
+def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
+                  state):  # fmt: skip
+    """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
+    packed keys (``pack_key``): hits into ``hits[:state[2]]`` (at most one per ray), misses into
+    ``misses[:state[3]]``. Returns True when done; False when a buffer must grow first:
+    ``seen_meta[11]`` says which (1 the dense bitmap, ``seen_meta[7]`` words; 2 the miss buffer;
+    3 the sparse bitmap). ``state`` = [phase (0 a new frame, 1 hits, 2 rays), ray, hits listed,
+    misses listed]: the caller grows the buffer (keeping what is listed) and calls again, which
+    goes on from the ray it stopped in (its voxels listed so far are marked: not listed twice).
 
     Hits first (the end voxel of every hit ray), then the rays are traversed with the Amanatides
     & Woo DDA exactly as OctoMap's computeRayKeys does (origin voxel included, end voxel
     excluded, same tie breaking and stop rule); every voxel on a ray is a miss. A voxel is
-    listed once, at its first update: the ``seen`` bitmap over the frame's box (``_seen_setup``)
+    listed once, at its first update: a dense bitmap over the frame's box (``_seen_setup``)
     drops the repeats (a dense depth frame steps through each voxel about 15 times, every ray
-    passing the voxels near the camera). A voxel outside the box (or every voxel, when the box
-    is too big for a bitmap) is listed at each step; ``apply_voxels`` drops those repeats with
-    the stamps. Reads no map state, so it may run in another thread than ``apply_voxels``."""
-    if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
-        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64), False
-    use_seen = seen_meta[0] != 0
+    passing the voxels near the camera); when the box is too big for a dense bitmap (long lidar
+    rays, fine resolutions) a sparse one (``_sparse_visit``) takes every voxel. Reads no map
+    state, so it may run in another thread than ``apply_voxels``."""
     si0, sj0, sk0 = seen_meta[1], seen_meta[2], seen_meta[3]
     snx, sny, snz = seen_meta[4], seen_meta[5], seen_meta[6]
     usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
     n = ends.shape[0]
-    hits = np.empty(n, dtype=np.int64)
-    n_hit = 0
-    for r in range(n):
+    sp_cache = np.empty(4, dtype=np.int64)  # the sparse bitmap's last block and its slot: none yet
+    sp_cache[0] = -(1 << 40)
+    sp_cache[3] = -1
+    n_hit = state[2]
+    r0 = state[1] if state[0] == 1 else n
+    for r in range(r0, n):
         if kind[r] != RAY_HIT:
             continue
         i = np.int64(np.floor(ends[r, 0] * inv_res))
         j = np.int64(np.floor(ends[r, 1] * inv_res))
         k = np.int64(np.floor(ends[r, 2] * inv_res))
-        li, lj, lk = i - si0, j - sj0, k - sk0
-        if use_seen and (np.uint64(li) < usnx) & (np.uint64(lj) < usny) & (np.uint64(lk) < usnz):
-            bit = (li * sny + lj) * snz + lk
+        if seen is None:
+            first = _sparse_visit(i, j, k, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, sp_cache)
+            if first < 0:
+                seen_meta[11] = 3
+                state[1], state[2] = r, n_hit
+                return False
+            if first == 0:
+                continue
+        else:  # an end voxel is always in the box
+            bit = ((i - si0) * sny + (j - sj0)) * snz + (k - sk0)
             if _seen_bit(seen, bit):
                 continue
             seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
         hits[n_hit] = pack_key(i, j, k)
         n_hit += 1
+    if state[0] == 1:
+        state[0], state[1], state[2] = 2, 0, n_hit
 
     cap = misses.shape[0]
-    n_miss = 0
+    n_miss = state[3]
     ox, oy, oz = origin[0], origin[1], origin[2]
     ki0 = np.int64(np.floor(ox * inv_res))
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
     big = 1e300
-    for r in range(n):
+    for r in range(state[1], n):
         if kind[r] == RAY_SKIP:
             continue
         ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
@@ -214,20 +316,30 @@ def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, misses):
             tdz = big
         max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
         steps = 0
+        if n_miss + max_steps + 2 > cap:  # room for this ray's voxels, or the caller grows the buffer
+            seen_meta[11] = 2
+            state[1], state[3] = r, n_miss
+            return False
         lin = ((ci - si0) * sny + (cj - sj0)) * snz + (ck - sk0)  # bit of (ci, cj, ck) when in the box
         lsx, lsy, lsz = si * sny * snz, sj * snz, sk
         while True:
             # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss, unless this
             # frame updated it already
-            new = True
-            if use_seen and (np.uint64(ci - si0) < usnx) & (np.uint64(cj - sj0) < usny) & (np.uint64(ck - sk0) < usnz):
-                if _seen_bit(seen, lin):
-                    new = False
-                else:
-                    seen[lin >> 6] |= np.uint64(1) << np.uint64(lin & 63)
-            if new:
-                if n_miss >= cap:  # the caller gives a bigger buffer and calls again
-                    return hits[:0], misses[:0], False
+            if seen is None:  # the sparse bitmap (numba compiles this loop twice: seen None or not)
+                first = _sparse_visit(ci, cj, ck, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, sp_cache)
+                if first < 0:
+                    seen_meta[11] = 3
+                    state[1], state[3] = r, n_miss
+                    return False
+            else:  # the dense one; outside its box (a ray's last steps past its end voxel, rare) a
+                # voxel is listed at each step: apply_voxels drops those repeats by their stamps
+                first = 1
+                if (np.uint64(ci - si0) < usnx) & (np.uint64(cj - sj0) < usny) & (np.uint64(ck - sk0) < usnz):
+                    if _seen_bit(seen, lin):
+                        first = 0
+                    else:
+                        seen[lin >> 6] |= np.uint64(1) << np.uint64(lin & 63)
+            if first > 0:
                 misses[n_miss] = pack_key(ci, cj, ck)
                 n_miss += 1
             # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
@@ -255,7 +367,8 @@ def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, misses):
             steps += 1
             if steps > max_steps:
                 break
-    return hits[:n_hit].copy(), misses[:n_miss], True
+    state[1], state[3] = n, n_miss
+    return True
 
 
 @njit(cache=True, nogil=True)
@@ -269,8 +382,8 @@ def apply_voxels_kernel(
     """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
     grows storage and calls again from there. A voxel whose stamp is this frame's was updated
-    already (a repeat listed from outside the bitmap's box): it is left alone, so each voxel is
-    updated once per frame and a hit wins over a miss. ``counters`` accumulates [hits applied,
+    already: it is left alone (``frame_voxels`` lists each voxel once, so this is a guard), so
+    each voxel is updated once per frame and a hit wins over a miss. ``counters`` accumulates [hits applied,
     misses applied]."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
