@@ -652,7 +652,11 @@ class LayeredMap:
                         "the extent of ltmap's voxel keys; use a fixed frame near the robot or a coarser resolution"
                     )
             if ok:
-                return hits[: state[2]], scratch.misses[: state[3]].copy()
+                misses = scratch.misses[: state[3]]
+                # hand the buffer over with the list (no copy) and start the next frame's buffer at
+                # the size this one needed, with room to spare
+                scratch.misses = np.empty(max(1 << 16, state[3] + state[3] // 4), dtype=np.int64)
+                return hits[: state[2]], misses
             if meta[11] == 1:  # before any voxel is listed: the frame starts again
                 scratch.seen = np.empty(int(meta[7]), dtype=np.uint64)
             elif meta[11] == 2:  # go on where it stopped, with what is listed
