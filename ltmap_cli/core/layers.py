@@ -26,6 +26,7 @@ from .config import MapConfig
 from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, VoxelGrid, find_block, get_or_add_block, voxel_offset
 from .raycast import (
     SEEN_MAX_WORDS,
+    SEEN_PAD,
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
     apply_voxels_kernel,
@@ -640,17 +641,16 @@ class LayeredMap:
         inv_res = 1.0 / self.resolution
         hits = np.empty(len(kind), dtype=np.int64)
         state = np.zeros(4, dtype=np.int64)  # [phase, ray, hits listed, misses listed]
+        checked = False
         while True:
             ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, meta, hits, scratch.misses,
                               *scratch.sparse, state)  # fmt: skip
-            if state[0] > 0:  # the box is known
-                lo, hi = meta[1:4] + 4, meta[1:4] + meta[4:7] - 5  # the box of the ends and the origin
-                if int(lo.min()) < -KEY_LIMIT or int(hi.max()) > KEY_LIMIT:
-                    raise CoreError(
-                        f"rays from ({origin[0]:.1f}, {origin[1]:.1f}, {origin[2]:.1f}) m reach voxels beyond "
-                        f"+-{KEY_LIMIT} keys (+-{KEY_LIMIT * self.resolution / 1000:.1f} km at {self.resolution:g} m), "
-                        "the extent of ltmap's voxel keys; use a fixed frame near the robot or a coarser resolution"
-                    )
+            if state[0] > 0 and not checked:  # the frame's box is known: within the keys' extent?
+                # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
+                lo = (meta[1:4] + SEEN_PAD) * self.resolution
+                hi = (meta[1:4] + meta[4:7] - SEEN_PAD) * self.resolution
+                check_extent(origin, float(np.max(np.maximum(origin - lo, hi - origin))), self.resolution)
+                checked = True
             if ok:
                 misses = scratch.misses[: state[3]]
                 # hand the buffer over with the list (no copy) and start the next frame's buffer at

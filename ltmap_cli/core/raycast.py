@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK_BITS, get_or_add_block, voxel_offset
+from .grid import _PACK_BITS, _PACK_OFFSET, BLOCK_BITS, _slot, get_or_add_block, pack_block, voxel_offset
 
 RAY_SKIP = 0  # dropped (NaN)
 RAY_CLEAR = 1  # clears up to its end, end marks nothing
@@ -78,13 +78,11 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
     return ends, kind
 
 
-KEY_OFFSET = 1 << 20  # voxel keys are packed as 3 x 21 bits, each + 2^20 (core.layers.KEY_LIMIT)
-KEY_MASK = (1 << 21) - 1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def pack_key(i, j, k):
-    return ((i + KEY_OFFSET) << 42) | ((j + KEY_OFFSET) << 21) | (k + KEY_OFFSET)
+# voxel keys are packed as block coordinates are (grid.pack_block: 3 x 21 bits, each + 2^20;
+# keys within +-core.layers.KEY_LIMIT)
+KEY_OFFSET = _PACK_OFFSET
+KEY_MASK = (1 << _PACK_BITS) - 1
+SEEN_PAD = 4  # the dense bitmap's box: the ends and the origin, and this many voxels around
 
 
 @njit(cache=True, nogil=True)
@@ -111,7 +109,7 @@ def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
         hi_j = max(hi_j, j)
         lo_k = min(lo_k, k)
         hi_k = max(hi_k, k)
-    pad = 4  # a ray may step past its end voxel (the stop rule allows a few steps); beyond: sparse
+    pad = SEEN_PAD  # a ray may step past its end voxel (the stop rule allows a few steps)
     nx, ny, nz = hi_i - lo_i + 1 + 2 * pad, hi_j - lo_j + 1 + 2 * pad, hi_k - lo_k + 1 + 2 * pad
     seen_meta[1], seen_meta[2], seen_meta[3] = lo_i - pad, lo_j - pad, lo_k - pad
     seen_meta[4], seen_meta[5], seen_meta[6] = nx, ny, nz
@@ -160,8 +158,7 @@ def sparse_grown(sp_keys, sp_gen, sp_vals, sp_words, gen, slots):
     for s in range(sp_keys.shape[0]):
         if sp_gen[s] != gen:
             continue
-        h = np.uint64(sp_keys[s]) * np.uint64(0x9E3779B97F4A7C15)
-        t = np.int64((h ^ (h >> np.uint64(31))) & np.uint64(mask))
+        t = _slot(sp_keys[s], mask)
         while gens[t] == gen:
             t = (t + 1) & mask
         keys[t], gens[t], vals[t] = sp_keys[s], gen, sp_vals[s]
@@ -176,9 +173,8 @@ def _sparse_slot(bx, by, bz, sp_keys, sp_gen, sp_vals, sp_words, seen_meta):
     -1 when it is full (the caller grows it)."""
     mask = sp_keys.shape[0] - 1
     gen = seen_meta[10]
-    packed = pack_key(bx, by, bz)
-    h = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
-    s = np.int64((h ^ (h >> np.uint64(31))) & np.uint64(mask))
+    packed = pack_block(bx, by, bz)
+    s = _slot(packed, mask)
     while sp_gen[s] == gen:
         if sp_keys[s] == packed:
             return sp_vals[s]
@@ -223,7 +219,7 @@ def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses
 def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
                   state):  # fmt: skip
     """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
-    packed keys (``pack_key``): hits into ``hits[:state[2]]`` (at most one per ray), misses into
+    packed keys (``grid.pack_block``): hits into ``hits[:state[2]]`` (at most one per ray), misses into
     ``misses[:state[3]]``. Returns True when done; False when a buffer must grow first:
     ``seen_meta[11]`` says which (1 the dense bitmap, ``seen_meta[7]`` words; 2 the miss buffer;
     3 the sparse bitmap). ``state`` = [phase (0 a new frame, 1 hits, 2 rays), ray, hits listed,
@@ -266,7 +262,7 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             if _seen_bit(seen, bit):
                 continue
             seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
-        hits[n_hit] = pack_key(i, j, k)
+        hits[n_hit] = pack_block(i, j, k)
         n_hit += 1
     if state[0] == 1:
         state[0], state[1], state[2] = 2, 0, n_hit
@@ -340,7 +336,7 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
                     else:
                         seen[lin >> 6] |= np.uint64(1) << np.uint64(lin & 63)
             if first > 0:
-                misses[n_miss] = pack_key(ci, cj, ck)
+                misses[n_miss] = pack_block(ci, cj, ck)
                 n_miss += 1
             # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
             if tmx < tmy:
@@ -383,8 +379,8 @@ def apply_voxels_kernel(
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
     grows storage and calls again from there. A voxel whose stamp is this frame's was updated
     already: it is left alone (``frame_voxels`` lists each voxel once, so this is a guard), so
-    each voxel is updated once per frame and a hit wins over a miss. ``counters`` accumulates [hits applied,
-    misses applied]."""
+    each voxel is updated once per frame and a hit wins over a miss. ``counters`` accumulates
+    [hits applied, misses applied]."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
@@ -438,6 +434,12 @@ def apply_voxels_kernel(
     return STATUS_DONE, 2, 0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _dedupe_key(i, j, k, hit):
+    """The key of one ray in the end-point dedupe: its end voxel and whether it is a hit."""
+    return pack_block(i, j, k) * 2 + (1 if hit else 0)
+
+
 @njit(cache=True, nogil=True)
 def dedupe_endpoints(ends, kind, inv_res):
     """Keep one ray per (end voxel, kind): later duplicates become RAY_SKIP (in place).
@@ -456,12 +458,11 @@ def dedupe_endpoints(ends, kind, inv_res):
         kd = kind[r]
         if kd == RAY_SKIP:
             continue
-        i = np.int64(np.floor(ends[r, 0] * inv_res)) + (1 << 20)
-        j = np.int64(np.floor(ends[r, 1] * inv_res)) + (1 << 20)
-        k = np.int64(np.floor(ends[r, 2] * inv_res)) + (1 << 20)
-        packed = ((i << 42) | (j << 21) | k) * 2 + (1 if kd == RAY_HIT else 0)
-        h = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
-        s = np.int64((h ^ (h >> np.uint64(31))) & np.uint64(mask))
+        i = np.int64(np.floor(ends[r, 0] * inv_res))
+        j = np.int64(np.floor(ends[r, 1] * inv_res))
+        k = np.int64(np.floor(ends[r, 2] * inv_res))
+        packed = _dedupe_key(i, j, k, kd == RAY_HIT)
+        s = _slot(packed, mask)
         while True:
             t = table[s]
             if t == packed:
@@ -473,12 +474,6 @@ def dedupe_endpoints(ends, kind, inv_res):
                 break
             s = (s + 1) & mask
     return dropped
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _slot_of(packed, mask):
-    hh = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
-    return np.int64((hh ^ (hh >> np.uint64(31))) & np.uint64(mask))
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -495,8 +490,8 @@ def _depth_rays_pass(
     max-range cut, its kind and its dedupe key, with the arithmetic of ``classify_rays`` and
     ``dedupe_endpoints`` (the cut is computed for every pixel and used only beyond max_range). It
     also marks the pixels whose key equals that of one of the three pixels before it or of the
-    five nearest above it (near the row's ends: those that exist): those keys are in the dedupe set already, so the pixel adds nothing.
-    The second pass walks the row's other pixels in order (an index list, no branch per pixel)
+    five nearest above it (near the row's ends: those that exist): those keys are in the dedupe
+    set already, so the pixel adds nothing. The second pass walks the row's other pixels in order (an index list, no branch per pixel)
     and looks them up: the set sees the same keys in the same order minus repeats, so the rays
     kept (the first per key) are the same, in the same order. About 4x faster than one branchy
     loop over the pixels (4.4 -> 1.2 ms for a 640x480 frame of the bench log).
@@ -524,7 +519,6 @@ def _depth_rays_pass(
     # a ray is cut only beyond max_range: below this squared length it surely is not (no sqrt)
     safe2 = (max_range * (1.0 - 1e-9)) ** 2 if max_range > 0.0 else np.inf
     use_ground = ground_tol >= 0.0
-    off = np.int64(1 << 20)
     # row buffers: end point, kind, dedupe key, is a ray; the row above's keys; pixels to look up
     rx = np.empty(w, dtype=np.float64)
     ry = np.empty(w, dtype=np.float64)
@@ -568,14 +562,14 @@ def _depth_rays_pass(
             lz = f20 * px + f21 * py + f22 * pz + f23
             in_fp = use_fp & (bx0 <= lx) & (lx <= bx1) & (by0 <= ly) & (ly <= by1) & (bz0 <= lz) & (lz <= bz1)
             hit = not ((use_ground & (abs(pz) <= ground_tol)) | in_fp | cut)
-            i = np.int64(np.floor(px * inv_res)) + off
-            j = np.int64(np.floor(py * inv_res)) + off
-            k = np.int64(np.floor(pz * inv_res)) + off
+            i = np.int64(np.floor(px * inv_res))
+            j = np.int64(np.floor(py * inv_res))
+            k = np.int64(np.floor(pz * inv_res))
             rx[u] = px
             ry[u] = py
             rz[u] = pz
             rkind[u] = RAY_HIT if hit else RAY_CLEAR
-            key[u] = ((i << 42) | (j << 21) | k) * 2 + (1 if hit else 0)
+            key[u] = _dedupe_key(i, j, k, hit)
             ok[u] = valid
         if dedupe:  # pass 1b: pixels whose key is surely in the set already
             for u in range(3, w - 2):  # every neighbour exists: no branches (vectorized)
@@ -604,7 +598,7 @@ def _depth_rays_pass(
             u = idx[q]
             px, py, pz, kd, packed = rx[u], ry[u], rz[u], rkind[u], key[u]
             if dedupe:
-                s = _slot_of(packed, mask)
+                s = _slot(packed, mask)
                 dup = False
                 while True:
                     t = table[s]
