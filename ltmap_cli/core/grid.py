@@ -17,7 +17,7 @@ BLOCK_BITS = 3
 BLOCK = 1 << BLOCK_BITS  # voxels per block edge
 BLOCK_MASK = BLOCK - 1
 BLOCK_VOXELS = BLOCK * BLOCK * BLOCK
-_PACK_OFFSET = 1 << 20  # block coordinates must lie in [-2^20, 2^20): +-420 km at 0.05 m
+_PACK_OFFSET = 1 << 20  # block coordinates (and the voxel keys of core.raycast) lie in [-2^20, 2^20)
 _PACK_BITS = 21
 EMPTY_KEY = -1
 
