@@ -37,6 +37,7 @@ from .errors import InputError, OutputError, TransformError, output_error
 from .io.atomic import write_text_atomic
 from .io.decode import RawDepthFrame
 from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
+from .transforms import TfBuffer, norm
 
 NS = 1_000_000_000
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
@@ -160,6 +161,8 @@ class Replay:
         self._next_map_ns = None
         self._map_dirty = True
         self._p_latest: Projection | None = None
+        self._p_now_key: tuple | None = None  # (frame_id, tick_index) of _p_now_value
+        self._p_now_value: Projection | None = None
         self._p_published = None  # ((shape, origin), data) of the last /map written
         self._frame_log: deque = deque()  # (stamp ns, lmap.frame_id) of the frames of the last seconds
         self._jobs: deque = deque()
@@ -192,8 +195,6 @@ class Replay:
             raise
 
     def _setup_and_run(self, t_wall0: float) -> dict:
-        from .transforms import TfBuffer
-
         cfg, req = self.cfg, self.req
         static, static_info, static_layer = (None, None, None)
         if req.static is not None:
@@ -429,8 +430,6 @@ class Replay:
         """replay.mcap's /tf and /tf_static: the transforms the replay used, as it used them. A
         sample the tf buffer ignored (an edge a --tf mount or /tf owns) is not copied; a pose taken
         from nav_msgs/Odometry (no /tf for that edge) is written to /tf."""
-        from .transforms import norm
-
         static = isinstance(item, TfSample) and item.static
         source = "odom" if isinstance(item, OdometrySample) else ("static" if static else "tf")
         edge = self.tf.edges.get(norm(item.child))
@@ -481,6 +480,14 @@ class Replay:
             self.counts.tick_ms.append((t2 - t_tick) * 1e3)
             self._tick_end += self._tick_ns
 
+    def _p_now(self) -> Projection:
+        """P of the map as it is now, projected once per map state (frames and ticks change it):
+        the planner, /map and the outputs at one state share one projection."""
+        key = (self.lmap.frame_id, self.lmap.tick_index)
+        if self._p_now_key != key:
+            self._p_now_key, self._p_now_value = key, project(self.lmap)
+        return self._p_now_value
+
     def _plan(self, t_s: float) -> None:
         """Plan from the robot's current position on the current P (for the planner latency)."""
         from .io.mapfile import GridMap
@@ -488,7 +495,7 @@ class Replay:
         if self.robot_xy is None or t_s < self._next_plan_s:
             return
         self._next_plan_s = t_s + self.cfg.replay.plan_period
-        p = project(self.lmap)
+        p = self._p_now()
         self.tracker.update(t_s, GridMap(p.data, p.resolution, p.origin), self.robot_xy)
 
     def _publish_maps(self, stamp_ns: int, force: bool = False) -> None:
@@ -508,7 +515,7 @@ class Replay:
         from .core.grid import coord_to_pos
 
         lmap, frame = self.lmap, self.fixed_frame
-        p = project(lmap)
+        p = self._p_now()
         sig = (p.data.shape, tuple(p.origin))
         last = self._p_published
         self._next_map_ns = stamp_ns + int(self.cfg.replay.map_period * NS)  # checked at most once a period
@@ -529,7 +536,7 @@ class Replay:
         from .core.projection import virtual_scan
 
         if self._p_latest is None:
-            self._p_latest = project(self.lmap)
+            self._p_latest = self._p_now()
         yaw = float(np.arctan2(T[1, 0], T[0, 0]))
         sign = 1.0 if T[2, 2] >= 0 else -1.0  # an upside-down laser turns the other way
         angles = sign * item.angles
@@ -762,7 +769,7 @@ class Replay:
         from .plots import write_summary_plots
 
         lmap, cfg = self.lmap, self.cfg
-        p = project(lmap)
+        p = self._p_now()
         for e in self.events:
             h = self.histories.get(e["id"])
             if h is None:
@@ -815,7 +822,7 @@ class Replay:
             )  # fmt: skip
             written[name] = str(out / f"{name}.yaml")
 
-        save("map", project(lmap), cfg.replay.mode)
+        save("map", self._p_now(), cfg.replay.mode)
         save("long_term", project(lmap, use_static=False), cfg.replay.mode)
         if lmap.static is not None:
             save("static", project(lmap, use_lt=False, use_o_free=False), "trinary")

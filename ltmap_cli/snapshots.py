@@ -62,14 +62,19 @@ def long_term_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
     return keys, D.get("lt", keys)
 
 
+def _seen_free(lmap: LayeredMap) -> np.ndarray:
+    """Per O voxel (blocks x 512): the sensor saw it free (log-odds < 0, updated at least once)."""
+    O = lmap.O
+    return (O.channel("logodds") < 0) & (O.channel("stamp") > 0)
+
+
 def snapshot_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
     """(keys (N, 3), OctoMap log-odds (N,) float32) of what a ``.ot`` snapshot holds: every voxel
     with LT > 0 (log-odds from its LT), then every voxel the sensor map O has seen free (log-odds
     < 0) and LT does not hold, at the log-odds of LT = 0 (``lt_to_ot_logodds(0)``)."""
     thr = lmap.cfg.projection.occupied_thresh
     keys, lt = long_term_voxels(lmap)
-    O = lmap.O
-    free = O.voxels_where((O.channel("logodds") < 0) & (O.channel("stamp") > 0))
+    free = lmap.O.voxels_where(_seen_free(lmap))
     if len(free):
         free = free[lmap.D.get("lt", free) <= 0]
     logodds = np.empty(len(keys) + len(free), dtype=np.float32)
@@ -78,16 +83,17 @@ def snapshot_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([keys, free]), logodds
 
 
-def snapshot_ot_bytes(lmap: LayeredMap) -> bytes:
+def snapshot_ot_bytes(lmap: LayeredMap, long_term: tuple[np.ndarray, np.ndarray] | None = None) -> bytes:
     """The ``.ot`` of ``snapshot_voxels`` (the same bytes as ``ot_bytes(*snapshot_voxels(lmap))``),
     built block by block from the sensor map's arrays: memory for the pruned leaves only, not a
-    key per free voxel (tens of millions on a 100 m floor)."""
+    key per free voxel (tens of millions on a 100 m floor). ``long_term``: ``long_term_voxels``
+    when the caller has it already."""
     from .io.ot import blocks_ot_bytes
 
     thr = lmap.cfg.projection.occupied_thresh
-    lt_keys, lt = long_term_voxels(lmap)
+    lt_keys, lt = long_term if long_term is not None else long_term_voxels(lmap)
     O = lmap.O
-    o_free = (O.channel("logodds") < 0) & (O.channel("stamp") > 0)
+    o_free = _seen_free(lmap)
     o_block = np.flatnonzero(o_free.any(axis=1))  # the sensor's blocks that hold free space
     blocks = O.block_keys()[o_block]
     if len(lt_keys):  # long-term voxels in blocks without free space (or never allocated: seeds, resume)
@@ -142,19 +148,18 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
     """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
-    from .io.atomic import atomic_path
+    from .io.atomic import write_bytes_atomic
 
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
     thr = lmap.cfg.projection.occupied_thresh
     out = {}
     ot_path = folder / f"long_term_{name}.ot"
-    data = snapshot_ot_bytes(lmap)
-    with atomic_path(ot_path) as tmp:
-        tmp.write_bytes(data)
+    keys, lt = long_term_voxels(lmap)
+    data = snapshot_ot_bytes(lmap, (keys, lt))
+    write_bytes_atomic(ot_path, data)
     del data
     out["ot"] = str(ot_path)
-    keys, lt = long_term_voxels(lmap)
     occ = lt >= thr
     ply_path = folder / f"long_term_{name}.ply"
     # no occupied voxel (the first snapshots of a run) is a valid PLY with 0 vertices: every

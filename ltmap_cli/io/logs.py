@@ -248,13 +248,15 @@ class LogSet:
         streams = [self._tagged(src, wanted, k) for k, src in enumerate(self.sources)]
         last: dict[str, tuple[int, int]] = {}  # topic -> (log time, source) of its last message
         twice: Counter[tuple[str, int, int]] = Counter()  # (topic, source a, source b) -> messages
+        several = len(streams) > 1  # one log cannot repeat another
+        n = self.stats.messages_per_topic
         for t, topic, decode, where, k in heapq.merge(*streams, key=lambda x: x[0]):
-            n = self.stats.messages_per_topic
             n[topic] = n.get(topic, 0) + 1
-            prev = last.get(topic)
-            if prev is not None and prev[0] == t and prev[1] != k and topic not in _SHARED_TOPICS:
-                twice[(topic, prev[1], k)] += 1
-            last[topic] = (t, k)
+            if several:
+                prev = last.get(topic)
+                if prev is not None and prev[0] == t and prev[1] != k and topic not in _SHARED_TOPICS:
+                    twice[(topic, prev[1], k)] += 1
+                last[topic] = (t, k)
             yield topic, t, decode, where
         if twice:
             (topic, a, b), count = twice.most_common(1)[0]
