@@ -14,7 +14,9 @@ from pathlib import Path
 from .errors import OutputError
 
 MAP_SUFFIXES = (".pgm", ".yaml", ".png")  # what write_map writes per map
-PLOT_FILES = ("layer_history.png", "latency_boxes.png", "processing_latency.png", "map_events.png", "map_3d.png")
+# plots.write_summary_plots writes these into OUT/plots (name -> file)
+PLOT_FILES = {name: f"{name}.png" for name in
+              ("layer_history", "latency_boxes", "processing_latency", "map_events", "map_3d")}  # fmt: skip
 
 
 def replay_output_files(*, static: bool, mcap: bool, plots: bool) -> list[str]:
@@ -25,7 +27,7 @@ def replay_output_files(*, static: bool, mcap: bool, plots: bool) -> list[str]:
     if mcap:
         names.append("replay.mcap")
     if plots:
-        names += [f"plots/{name}" for name in PLOT_FILES]
+        names += [f"plots/{name}" for name in PLOT_FILES.values()]
     return names
 
 

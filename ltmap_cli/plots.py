@@ -765,37 +765,39 @@ def write_summary_plots(
     Every file is written atomically."""
     from pathlib import Path
 
+    from .outputs import PLOT_FILES
+
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     written: dict[str, str] = {}
 
-    p = out / "layer_history.png"
+    p = out / PLOT_FILES["layer_history"]
     write_layer_history(p, events, histories, occupied_thresh=occupied_thresh, max_events=max_history_events)
     written["layer_history"] = str(p)
 
     fig, ax = new_plot_figure(max(6.0, 2.6 * max(len(latencies), 1) + 2.0), 5.0)
     plot_latency_boxes(ax, latencies, targets=targets)
-    p = out / "latency_boxes.png"
+    p = out / PLOT_FILES["latency_boxes"]
     save_png(fig, p)
     written["latency_boxes"] = str(p)
 
     fig, ax = new_plot_figure(9.0, 5.0)
     plot_processing_hist(ax, processing_ms, periods_ms=periods_ms)
-    p = out / "processing_latency.png"
+    p = out / PLOT_FILES["processing_latency"]
     save_png(fig, p)
     written["processing_latency"] = str(p)
 
     if grid is not None:
         fig, ax = new_figure(grid.width, grid.height, legend=True)
         plot_map_events(ax, grid, events, path_xy=path_xy, robot_xy=robot_xy, event_cells=event_cells)
-        p = out / "map_events.png"
+        p = out / PLOT_FILES["map_events"]
         save_png(fig, p)
         written["map_events"] = str(p)
 
     if map3d is not None:
         from .render3d import render_map_3d
 
-        p = out / "map_3d.png"
+        p = out / PLOT_FILES["map_3d"]
         render_map_3d(p, **map3d)
         written["map_3d"] = str(p)
     return written
