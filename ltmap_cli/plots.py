@@ -539,6 +539,8 @@ def _paint_event_cells(ax, grid, events: list[dict], event_cells: dict) -> None:
     """Fill each event's cells in its kind's colour: one RGBA image over the map's extent."""
     from matplotlib.colors import to_rgba as _rgba
 
+    from .analysis import in_bounds, world_to_cell
+
     res = float(grid.resolution)
     ox, oy = float(grid.origin[0]), float(grid.origin[1])
     H, W = np.asarray(grid.data).shape
@@ -547,9 +549,9 @@ def _paint_event_cells(ax, grid, events: list[dict], event_cells: dict) -> None:
         xy = event_cells.get(e.get("id"))
         if xy is None or not len(xy):
             continue
-        c = np.floor((np.asarray(xy, dtype=float)[:, 0] - ox) / res + 0.5).astype(np.int64)
-        r = np.floor((np.asarray(xy, dtype=float)[:, 1] - oy) / res + 0.5).astype(np.int64)
-        ok = (r >= 0) & (r < H) & (c >= 0) & (c < W)
+        centre = np.asarray(xy, dtype=float) + 0.5 * res  # lower-left corners -> centres
+        r, c = world_to_cell(grid, centre[:, 0], centre[:, 1])
+        ok = in_bounds(grid, r, c)
         over[r[ok], c[ok]] = _rgba(EVENT_COLORS.get(e.get("kind", "appear"), OI_PURPLE), 0.6)
     ax.imshow(over, origin="lower", extent=(ox, ox + W * res, oy, oy + H * res), interpolation="nearest",
               zorder=3)  # fmt: skip

@@ -163,6 +163,7 @@ class Replay:
         self._p_latest: Projection | None = None
         self._p_now_key: tuple | None = None  # (frame_id, tick_index) of _p_now_value
         self._p_now_value: Projection | None = None
+        self._members: dict[int, np.ndarray] = {}  # event id -> its D voxel ids (find_events)
         self._p_published = None  # ((shape, origin), data) of the last /map written
         self._frame_log: deque = deque()  # (stamp ns, lmap.frame_id) of the frames of the last seconds
         self._jobs: deque = deque()
@@ -805,7 +806,7 @@ class Replay:
         lmap = self.lmap
         coords = lmap.D.block_coords[: lmap.D.n_blocks]
         return {eid: np.unique(_voxel_keys(vids // 512, vids % 512, coords)[:, :2], axis=0) * lmap.resolution
-                for eid, vids in getattr(self, "_members", {}).items()}  # fmt: skip
+                for eid, vids in self._members.items()}  # fmt: skip
 
     def _write_maps(self, out: Path) -> dict[str, str]:
         from .io.mapfile import GridMap, write_map
