@@ -26,13 +26,13 @@ from pathlib import Path
 import numpy as np
 
 from ltmap_cli.core.config import MapConfig
+from ltmap_cli.core.grid import band_k_range
 from ltmap_cli.core.layers import LayeredMap
-from ltmap_cli.core.projection import band_k_range
 from ltmap_cli.core.sensors import depth_to_points, transform_points
-from ltmap_cli.filters import flying_pixel_mask
 from ltmap_cli.io.frames import DepthFrame, OdometrySample, TfSample
 from ltmap_cli.io.logs import open_logs
-from ltmap_cli.transforms import TfBuffer
+from ltmap_cli.io.transforms import TfBuffer
+from ltmap_cli.pipeline.filters import flying_pixel_mask
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,7 +6,7 @@ The log is simulated once (``ltmap simulate``, about 9 minutes on 2 cores) and c
 ``bench/.cache/replay_house/`` (git-ignored) with the static layer of the house plan; the scenario
 is written by this script, so the cache is rebuilt when the scenario changes.
 
-Per run the script replays the log with ``ltmap_cli.replay.Replay`` (no plots, no MCAP output)
+Per run the script replays the log with ``ltmap_cli.pipeline.replay.Replay`` (no plots, no MCAP output)
 and prints: log seconds per wall second, the time per stage (read and decode, tf, ray casting,
 ticks, projection, output) from the replay's own stage clock, frames integrated, and peak memory
 (ru_maxrss of a fresh child process per configuration, so configurations do not share a peak).
@@ -165,7 +165,7 @@ def child(name: str, log: Path, static: Path, out: Path) -> None:
     import ltmap_cli
     from ltmap_cli.config import Config
     from ltmap_cli.core.projection import project
-    from ltmap_cli.replay import Replay, ReplayRequest
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
     fast, threads, rate = CONFIGS[name]
     # warm-up: a short replay of the house sample, so that every numba kernel is compiled or

@@ -150,7 +150,7 @@ def child(log: Path, out: Path) -> None:
     import numpy as np
 
     from ltmap_cli.config import Config
-    from ltmap_cli.replay import Replay, ReplayRequest
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
     cfg = Config()
     cfg.replay.plots = False

@@ -55,7 +55,7 @@ def worker(log: Path, fixed: str, base: str, rounds: int, out_npy: Path) -> dict
     """Runs with whatever ``ltmap_cli`` is on sys.path (the current code or REF's)."""
     from ltmap_cli.io.frames import OdometrySample, TfSample
     from ltmap_cli.io.logs import open_logs
-    from ltmap_cli.transforms import TfBuffer
+    from ltmap_cli.io.transforms import TfBuffer
 
     events: list[tuple[str, object]] = []
     with open_logs([log]) as logs:

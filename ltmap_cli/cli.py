@@ -26,7 +26,6 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "diff": ("ltmap_cli.commands.diff", "diff", "Compare two maps cell by cell."),
     "plan": ("ltmap_cli.commands.plan", "plan", "Plan an A* path on a map."),
     "simulate": ("ltmap_cli.commands.simulate", "simulate", "Write a simulated log from a scenario."),
-    "demo": ("ltmap_cli.commands.demo", "demo", "Map a synthetic room and write PGM/YAML/PNG."),
 }
 
 

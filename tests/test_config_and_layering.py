@@ -48,7 +48,7 @@ def test_core_imports_no_ros_files_cli_or_plotting():
         "import sys\n"
         "import ltmap_cli.core.layers, ltmap_cli.core.projection, ltmap_cli.core.sensors, ltmap_cli.core.grid\n"
         "bad = [m for m in ('rosbags', 'mcap', 'click', 'matplotlib', 'open3d', 'ltmap_cli.io', "
-        "'ltmap_cli.cli', 'ltmap_cli.replay', 'ltmap_cli.plots') if m in sys.modules]\n"
+        "'ltmap_cli.cli', 'ltmap_cli.pipeline.replay', 'ltmap_cli.viz.plots') if m in sys.modules]\n"
         "print(','.join(bad))\n"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

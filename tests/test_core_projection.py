@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from ltmap_cli.core.config import MapConfig
+from ltmap_cli.core.grid import band_k_range
 from ltmap_cli.core.layers import LayeredMap, StaticGrid
-from ltmap_cli.core.projection import band_k_range, project, virtual_scan
+from ltmap_cli.core.projection import project, virtual_scan
 
 R = 0.05
 

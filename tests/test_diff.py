@@ -399,7 +399,7 @@ def test_3d_on_state_files_and_folders_equals_3d_on_their_ot(tmp_path):
     beside them: the same counts, by hand: B loses one wall voxel and gains two."""
     from ltmap_cli.core.config import MapConfig
     from ltmap_cli.core.layers import LayeredMap
-    from ltmap_cli.snapshots import write_snapshot
+    from ltmap_cli.outputs.snapshots import write_snapshot
 
     wall = [[i, 0, 10] for i in range(6)]
     for name, keys in (("a", wall), ("b", wall[1:] + [[0, 3, 10], [0, 4, 12]])):
@@ -433,7 +433,7 @@ def test_plan_and_2d_diff_read_state_snapshots_as_their_ot(tmp_path):
     LT voxels across the way, 0.5 m wide with a gap at its end, makes the same detour on both."""
     from ltmap_cli.core.config import MapConfig
     from ltmap_cli.core.layers import LayeredMap
-    from ltmap_cli.snapshots import write_snapshot
+    from ltmap_cli.outputs.snapshots import write_snapshot
 
     m = LayeredMap(MapConfig())
     wall = [[20, j, 10] for j in range(0, 30)]  # x = 1.0 m, y 0 .. 1.5 m

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from ltmap_cli.filters import depth_jump_mask, flying_pixel_mask
+from ltmap_cli.pipeline.filters import depth_jump_mask, flying_pixel_mask
 
 F, CX, CY = 100.0, 39.5, 29.5  # an 80 x 60 camera
 

@@ -304,7 +304,7 @@ def test_real_pioneer_ros1_bag_scan_decodes():
 
 @pytest.mark.skipif(not (REAL / "comprobo22_macfirst_floor_take_2").exists(), reason=f"real logs not in {REAL}")
 def test_real_comprobo_ros2_bag():
-    from ltmap_cli.transforms import TfBuffer
+    from ltmap_cli.io.transforms import TfBuffer
 
     buf = TfBuffer()
     with open_logs(REAL / "comprobo22_macfirst_floor_take_2") as logs:

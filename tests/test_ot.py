@@ -309,7 +309,7 @@ def test_snapshot_built_block_by_block_is_the_voxel_list_file():
     from ltmap_cli.core.config import MapConfig
     from ltmap_cli.core.layers import LayeredMap
     from ltmap_cli.io.ot import ot_bytes
-    from ltmap_cli.snapshots import snapshot_ot_bytes, snapshot_voxels
+    from ltmap_cli.outputs.snapshots import snapshot_ot_bytes, snapshot_voxels
 
     m = LayeredMap(MapConfig())
     rng = np.random.default_rng(3)
@@ -333,7 +333,7 @@ def test_snapshot_leaves_out_what_octomap_keys_cannot_hold(tmp_path):
     from ltmap_cli.core.layers import LayeredMap
     from ltmap_cli.errors import LtmapWarning
     from ltmap_cli.io.ot import read_ot
-    from ltmap_cli.snapshots import _WARNED, write_snapshot
+    from ltmap_cli.outputs.snapshots import _WARNED, write_snapshot
 
     m = LayeredMap(MapConfig())
     m.integrate([0.01, 0.01, 1.01], [[1.0, 0.01, 1.01]])
@@ -356,7 +356,13 @@ def test_resume_reads_only_the_long_term_voxels_of_a_snapshot(tmp_path):
     from ltmap_cli.core.config import MapConfig
     from ltmap_cli.core.layers import LayeredMap
     from ltmap_cli.io.ot import read_ot
-    from ltmap_cli.snapshots import LT_CLIP, load_resume, long_term_voxels, lt_to_ot_logodds, write_snapshot
+    from ltmap_cli.outputs.snapshots import (
+        LT_CLIP,
+        load_resume,
+        long_term_voxels,
+        lt_to_ot_logodds,
+        write_snapshot,
+    )
 
     m = LayeredMap(MapConfig())
     for y in np.arange(-1.0, 1.0, 0.05):

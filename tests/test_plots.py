@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from ltmap_cli import plots, render3d
 from ltmap_cli.io.mapfile import GridMap
+from ltmap_cli.viz import plots, render3d
 
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -71,7 +71,7 @@ def save(fig, path):
 
 
 def test_importing_plots_does_not_import_matplotlib():
-    code = "import sys, ltmap_cli.plots, ltmap_cli.render3d; print('matplotlib' in sys.modules, 'open3d' in sys.modules)"
+    code = "import sys, ltmap_cli.viz.plots, ltmap_cli.viz.render3d; print('matplotlib' in sys.modules, 'open3d' in sys.modules)"
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", "False"]
 
@@ -328,7 +328,7 @@ def test_visible_faces_of_a_block():
 
 
 def test_event_titles_say_when_p_did_not_change():
-    from ltmap_cli.plots import _event_title
+    from ltmap_cli.viz.plots import _event_title
 
     e = {"kind": "disappear", "centroid": [3.06, 1.93, 0.28], "p_cells": 0}
     assert _event_title(e, 9) == "event 9: disappear at (3.1, 1.9) m (P unchanged)"

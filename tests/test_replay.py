@@ -314,7 +314,7 @@ def test_ot_snapshot_is_long_term_plus_free_space_and_octomap_reads_it(tmp_path)
     from ltmap_cli.core.layers import LayeredMap
     from ltmap_cli.io.ot import read_ot
     from ltmap_cli.io.state import read_state
-    from ltmap_cli.snapshots import lt_to_ot_logodds, read_snapshot_voxels
+    from ltmap_cli.outputs.snapshots import lt_to_ot_logodds, read_snapshot_voxels
 
     snaps = pillar_removed_run(tmp_path)
     for name in ("t000018.0s", "t000021.0s", "final"):
@@ -360,7 +360,7 @@ def test_resume_from_an_ot_snapshot_equals_resume_from_its_state_file(tmp_path):
     from ltmap_cli.core.config import MapConfig
     from ltmap_cli.core.layers import LayeredMap
     from ltmap_cli.io.ot import read_ot
-    from ltmap_cli.snapshots import load_resume
+    from ltmap_cli.outputs.snapshots import load_resume
 
     snaps = pillar_removed_run(tmp_path)
     for name in ("t000021.0s", "final"):

@@ -14,8 +14,8 @@ from test_replay import assert_one_line_error, run
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import LayeredMap
 from ltmap_cli.io.state import read_state
-from ltmap_cli.outputs import replay_output_files, replay_output_folders
-from ltmap_cli.replay import Replay
+from ltmap_cli.outputs.names import replay_output_files, replay_output_folders
+from ltmap_cli.pipeline.replay import Replay
 
 LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
 

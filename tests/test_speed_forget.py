@@ -7,13 +7,36 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from numba import njit
 
 from ltmap_cli.config import Config
-from ltmap_cli.core.layers import LayeredMap, _forget_kernel
-from ltmap_cli.core.projection import band_k_range
-from ltmap_cli.replay import Replay, ReplayRequest
+from ltmap_cli.core.grid import BLOCK, BLOCK_MASK, band_k_range
+from ltmap_cli.core.layers import LayeredMap, _record_history
+from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
 HOUSE = Path(__file__).resolve().parent.parent / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
+
+
+@njit(cache=False)
+def _forget_kernel(n_blocks, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi,
+                   hist_i, hist_v, hist_meta):  # fmt: skip
+    """ST falls to 0 where no obstacle was seen for ``forget_ticks``. Returns the number forgotten,
+    or -1 when the history buffer must grow first (nothing changed)."""
+    n = 0
+    for b in range(n_blocks):
+        bz0 = np.int64(d_coords[b, 2]) * BLOCK
+        for o in range(st.shape[1]):
+            if st[b, o] > 0.0 and tick_index - last_obs[b, o] >= forget_ticks:
+                k = bz0 + (o & BLOCK_MASK)
+                if k_lo <= k <= k_hi:
+                    if hist_meta[0] >= hist_i.shape[0]:
+                        return -1
+                    _record_history(hist_i, hist_v, hist_meta, tick_index, b * 512 + o, 0.0, lt[b, o])
+                st[b, o] = 0.0
+                obst_since[b, o] = -1
+                n += 1
+    return n
+
 
 
 def _check_nothing_left(lmap: LayeredMap) -> int:

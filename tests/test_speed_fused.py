@@ -23,7 +23,7 @@ from ltmap_cli.core.sensors import depth_to_points, transform_points, transform_
 from ltmap_cli.io.decode import RawDepthFrame
 from ltmap_cli.io.frames import DepthFrame
 from ltmap_cli.io.logs import open_logs
-from ltmap_cli.replay import Replay, ReplayRequest
+from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
 ROOT = Path(__file__).resolve().parent.parent
 HOUSE = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"

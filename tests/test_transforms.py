@@ -9,7 +9,7 @@ import pytest
 
 from ltmap_cli.errors import InputError, TransformError
 from ltmap_cli.io.frames import OdometrySample, TfSample
-from ltmap_cli.transforms import LookupFailure, TfBuffer, choose_fixed_frame, parse_mount, rpy_to_quat
+from ltmap_cli.io.transforms import LookupFailure, TfBuffer, choose_fixed_frame, parse_mount, rpy_to_quat
 
 S = 1_000_000_000
 

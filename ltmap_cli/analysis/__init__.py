@@ -37,12 +37,6 @@ def unknown_mask(grid: GridMap) -> np.ndarray:
     return np.asarray(grid.data) < 0
 
 
-def free_mask(grid: GridMap) -> np.ndarray:
-    """bool (H, W): known cells below OCCUPIED_MIN."""
-    d = np.asarray(grid.data)
-    return (d >= 0) & (d < OCCUPIED_MIN)
-
-
 # ---------------------------------------------------------------------------------------------
 # world <-> cell (row 0 = lowest y, col 0 = lowest x; origin = lower-left corner of cell (0,0))
 
@@ -87,12 +81,6 @@ def in_bounds(grid: GridMap, row, col):
         & (np.asarray(col) >= 0)
         & (np.asarray(col) < grid.width)
     )
-
-
-def grid_extent(grid: GridMap) -> tuple[float, float, float, float]:
-    """(xmin, xmax, ymin, ymax) of the grid in its own (map) frame, i.e. ignoring yaw."""
-    ox, oy, _ = grid.origin
-    return ox, ox + grid.width * grid.resolution, oy, oy + grid.height * grid.resolution
 
 
 # ---------------------------------------------------------------------------------------------
@@ -143,7 +131,7 @@ def project_state(path: Path, z_band: tuple[float, float] = Z_BAND) -> GridMap:
     long-term voxels are being forgotten (0 < LT < occupied_thresh: seen free, LT falling) while
     no band voxel is free in O at that moment: free here and in the ``.ot`` (log-odds < 0),
     unknown in ``long_term.pgm``."""
-    from ..snapshots import read_snapshot_voxels
+    from ..outputs.snapshots import read_snapshot_voxels
 
     keys, logodds, res = read_snapshot_voxels(path)
     return project_voxels(keys, logodds, res, z_band)

@@ -30,7 +30,6 @@ from ..errors import InputError, NoPathError
 from ..io.mapfile import GridMap
 from . import cell_to_world, in_bounds, occupied_mask, unknown_mask, world_to_cell
 
-SQRT2 = math.sqrt(2.0)
 _EPS = 1e-9
 
 

@@ -52,7 +52,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
                 f"--3d compares two long-term snapshots (.ot, state .npz or replay output folders); "
                 f"{name} {p} is none of these"
             )
-    from ..snapshots import read_snapshot_voxels
+    from ..outputs.snapshots import read_snapshot_voxels
 
     ka, la, ra = read_snapshot_voxels(pa)
     kb, lb, rb = read_snapshot_voxels(pb)
@@ -173,7 +173,7 @@ def diff(
     rep = diff_report(d)
 
     if png is not None:
-        from ..plots import new_figure, plot_diff, save_png
+        from ..viz.plots import new_figure, plot_diff, save_png
 
         h, w = d.aligned.a.shape
         fig, ax = new_figure(w, h, legend=True)

@@ -48,7 +48,7 @@ def gather(
     from ..errors import LogReadError, TransformError
     from ..io import decode as dec
     from ..io.logs import IMAGE, TruncatedLogError, open_logs
-    from ..transforms import TfBuffer
+    from ..io.transforms import TfBuffer
 
     with open_logs(paths, allow_truncated=True) as logs:
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)

@@ -75,7 +75,7 @@ def plan(
     res = plan_on_grid(grid, start, goal, robot_radius=robot_radius, allow_unknown=allow_unknown)
 
     if png is not None:
-        from ..plots import new_figure, plot_path, save_png
+        from ..viz.plots import new_figure, plot_path, save_png
 
         fig, ax = new_figure(grid.width, grid.height, legend=True)
         plot_path(

@@ -143,7 +143,7 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     if not logs:
         raise click.UsageError("give at least one LOG (a .bag, a ROS 2 bag folder or an .mcap)")
 
-    from ..replay import Replay, ReplayRequest  # Replay.run checks the output names before any work
+    from ..pipeline.replay import Replay, ReplayRequest  # Replay.run checks the output names before any work
 
     bar = None if quiet else ProgressBar()
     run = Replay(cfg, ReplayRequest(list(logs), output, static=static, resume=resume), progress=bar)

@@ -285,3 +285,11 @@ class VoxelGrid:
 
 
 _LOCAL = _local_offsets()
+
+
+def band_k_range(z_min: float, z_max: float, resolution: float) -> tuple[int, int]:
+    """Voxel indices k (inclusive) whose interval [k r, (k+1) r) overlaps [z_min, z_max]
+    with positive length."""
+    k_lo = int(np.floor(z_min / resolution + 1e-9))
+    k_hi = int(np.ceil(z_max / resolution - 1e-9)) - 1
+    return k_lo, k_hi

@@ -23,7 +23,16 @@ from numba import njit
 
 from ..errors import CoreError
 from .config import MapConfig
-from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, VoxelGrid, find_block, get_or_add_block, voxel_offset
+from .grid import (
+    BLOCK,
+    BLOCK_BITS,
+    BLOCK_MASK,
+    VoxelGrid,
+    band_k_range,
+    find_block,
+    get_or_add_block,
+    voxel_offset,
+)
 from .raycast import (
     SEEN_MAX_WORDS,
     SEEN_PAD,
@@ -295,27 +304,6 @@ def _tick_kernel(
             if in_band and (record_all or left):
                 _record_history(hist_i, hist_v, hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
     return TICK_DONE
-
-
-@njit(cache=True)
-def _forget_kernel(n_blocks, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi,
-                   hist_i, hist_v, hist_meta):  # fmt: skip
-    """ST falls to 0 where no obstacle was seen for ``forget_ticks``. Returns the number forgotten,
-    or -1 when the history buffer must grow first (nothing changed)."""
-    n = 0
-    for b in range(n_blocks):
-        bz0 = np.int64(d_coords[b, 2]) * BLOCK
-        for o in range(st.shape[1]):
-            if st[b, o] > 0.0 and tick_index - last_obs[b, o] >= forget_ticks:
-                k = bz0 + (o & BLOCK_MASK)
-                if k_lo <= k <= k_hi:
-                    if hist_meta[0] >= hist_i.shape[0]:
-                        return -1
-                    _record_history(hist_i, hist_v, hist_meta, tick_index, b * 512 + o, 0.0, lt[b, o])
-                st[b, o] = 0.0
-                obst_since[b, o] = -1
-                n += 1
-    return n
 
 
 @njit(cache=True)
@@ -698,7 +686,6 @@ class LayeredMap:
     # -- tick ---------------------------------------------------------------------------------
     def end_tick(self) -> TickResult:
         """Apply the tick rules to the voxels observed since the last tick."""
-        from .projection import band_k_range
 
         lay = self.cfg.layers
         rise = lay.tick / lay.st_rise_s

@@ -16,17 +16,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, find_block, voxel_offset
+from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, band_k_range, find_block, voxel_offset
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 
 
-def band_k_range(z_min: float, z_max: float, resolution: float) -> tuple[int, int]:
-    """Voxel indices k (inclusive) whose interval [k r, (k+1) r) overlaps [z_min, z_max]
-    with positive length."""
-    k_lo = int(np.floor(z_min / resolution + 1e-9))
-    k_hi = int(np.ceil(z_max / resolution - 1e-9)) - 1
-    return k_lo, k_hi
 
 
 @dataclass
@@ -50,9 +44,6 @@ class Projection:
         out = np.where(known, np.rint(self.value * 100.0), -1)
         return out.astype(np.int8)
 
-    def cell_of(self, x: float, y: float) -> tuple[int, int]:
-        """(row, col) of the cell holding world point (x, y) (may lie outside the grid)."""
-        return (int(np.floor(y / self.resolution)) - self.j0, int(np.floor(x / self.resolution)) - self.i0)
 
 
 @njit(cache=True)
@@ -267,21 +258,3 @@ def virtual_scan(
     )  # fmt: skip
 
 
-def warm_up(cfg, static=None) -> None:
-    """Call every kernel of a replay once on a throw-away map, so that compiling them (first run
-    after an install) or loading them from numba's disk cache happens here, not in the first
-    frame's or tick's measured time: ray casting (points, and depth images in both encodings),
-    the tick rules, the projection and the virtual scan."""
-    from .layers import LayeredMap
-
-    m = LayeredMap(cfg, static=static)
-    T = np.eye(4)
-    T[2, 3] = 1.0
-    m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5], [1.0, -0.1, 0.02]], [True, False], max_range=4.0, robot_pose=T)
-    m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5]], None, max_range=4.0, robot_pose=None, dedupe=False)
-    for depth in (np.full((2, 2), 1000, dtype=np.uint16), np.full((2, 2), 1.0, dtype=np.float32)):
-        ends, kind = m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T)
-        m.integrate_rays(T[:3, 3], ends, kind)
-    m.end_tick()
-    p = project(m)
-    virtual_scan(m, p, (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)

@@ -19,8 +19,6 @@ import numpy as np
 from ..errors import LogReadError
 from .frames import CameraIntrinsics, CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
 
-DEPTH_ENCODINGS = ("16UC1", "32FC1")  # mono16 is accepted as 16UC1
-
 # sensor_msgs/PointField datatypes
 _POINTFIELD = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 

@@ -46,7 +46,7 @@ def new_figure(width_cells: int = 800, height_cells: int = 600, legend: bool = F
 
 def save_png(fig, path) -> None:
     """Write ``fig`` as PNG to ``path`` atomically (temporary file, then rename)."""
-    from .io.atomic import atomic_path
+    from ..io.atomic import atomic_path
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png", bbox_inches="tight")
@@ -132,7 +132,7 @@ def occupancy_rgb(data: np.ndarray, occupied_min: int = 65) -> np.ndarray:
 
 def plot_map(ax, grid, title: str | None = None, scale_bar: bool = True) -> None:
     """Draw a GridMap (free light, unknown grey, occupied dark) in metres."""
-    from .analysis import OCCUPIED_MIN
+    from ..analysis import OCCUPIED_MIN
 
     draw_rgb(ax, occupancy_rgb(grid.data, OCCUPIED_MIN), grid.resolution, grid.origin)
     _metre_axes(ax)
@@ -206,7 +206,7 @@ def plot_path(
     """Draw a map (with the inflated zone of ``blocked`` in light orange when given), a path
     (world x, y, shape (K, 2)) and its start and goal. ``draw_map=False`` adds only the path,
     to overlay several paths on one map."""
-    from .analysis import OCCUPIED_MIN
+    from ..analysis import OCCUPIED_MIN
 
     if draw_map:
         rgb = occupancy_rgb(grid.data, OCCUPIED_MIN)
@@ -539,7 +539,7 @@ def _paint_event_cells(ax, grid, events: list[dict], event_cells: dict) -> None:
     """Fill each event's cells in its kind's colour: one RGBA image over the map's extent."""
     from matplotlib.colors import to_rgba as _rgba
 
-    from .analysis import in_bounds, world_to_cell
+    from ..analysis import in_bounds, world_to_cell
 
     res = float(grid.resolution)
     ox, oy = float(grid.origin[0]), float(grid.origin[1])
@@ -767,7 +767,7 @@ def write_summary_plots(
     Every file is written atomically."""
     from pathlib import Path
 
-    from .outputs import PLOT_FILES
+    from ..outputs.names import PLOT_FILES
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

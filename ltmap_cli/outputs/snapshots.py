@@ -26,11 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .core.grid import coord_to_pos
-from .core.layers import LayeredMap
-from .errors import MapFileError
-from .io.ply import write_voxels_ply
-from .io.state import read_state, write_state
+from ..core.grid import coord_to_pos
+from ..core.layers import LayeredMap
+from ..errors import MapFileError
+from ..io.ply import write_voxels_ply
+from ..io.state import read_state, write_state
 
 LT_CLIP = 1e-3
 
@@ -88,7 +88,7 @@ def snapshot_ot_bytes(lmap: LayeredMap, long_term: tuple[np.ndarray, np.ndarray]
     built block by block from the sensor map's arrays: memory for the pruned leaves only, not a
     key per free voxel (tens of millions on a 100 m floor). ``long_term``: ``long_term_voxels``
     when the caller has it already."""
-    from .io.ot import blocks_ot_bytes
+    from ..io.ot import blocks_ot_bytes
 
     thr = lmap.cfg.projection.occupied_thresh
     lt_keys, lt = long_term if long_term is not None else long_term_voxels(lmap)
@@ -122,7 +122,7 @@ _WARNED: set[str] = set()
 def _warn_once(text: str) -> None:
     import warnings
 
-    from .errors import LtmapWarning
+    from ..errors import LtmapWarning
 
     if text not in _WARNED:
         _WARNED.add(text)
@@ -134,10 +134,10 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     log-odds of the ``.ot`` written beside it, see ``snapshot_voxels``: occupied iff log-odds > 0,
     free where LT < occupied_thresh or O saw free space, unknown where absent)."""
     if Path(path).suffix.lower() == ".ot":
-        from .io.ot import read_ot
+        from ..io.ot import read_ot
 
         return read_ot(path)
-    from .core.config import MapConfig
+    from ..core.config import MapConfig
 
     arrays, _meta = read_state(path)
     lmap = LayeredMap(MapConfig(resolution=float(arrays["resolution"])))
@@ -148,7 +148,7 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
     """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
-    from .io.atomic import write_bytes_atomic
+    from ..io.atomic import write_bytes_atomic
 
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
@@ -197,7 +197,7 @@ def load_resume(lmap: LayeredMap, path: str | Path) -> dict:
     """Seed LT of ``lmap`` from a snapshot; returns what was loaded (for the report)."""
     p = resolve_resume(path)
     if p.suffix == ".ot":
-        from .io.ot import read_ot
+        from ..io.ot import read_ot
 
         floor = float(lt_to_ot_logodds(LT_CLIP * 1.5, lmap.cfg.projection.occupied_thresh))
         keys, logodds, res = read_ot(p, min_logodds=floor)  # the free leaves (LT = 0) are not expanded

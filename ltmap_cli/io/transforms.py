@@ -30,8 +30,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import InputError, TransformError
-from .io.frames import OdometrySample, TfSample
+from ..errors import InputError, TransformError
+from .frames import OdometrySample, TfSample
 
 MOUNT_FORM = "parent:child=x,y,z,roll,pitch,yaw (metres, radians), e.g. base_link:laser=0.1,0,0.2,0,0,0"
 
@@ -203,10 +203,6 @@ class TfBuffer:
         out = set(self.edges)
         out.update(e.parent for e in self.edges.values())
         return out
-
-    def has_edge(self, parent: str, child: str) -> bool:
-        e = self.edges.get(norm(child))
-        return e is not None and e.parent == norm(parent)
 
     def _chain(self, frame: str) -> tuple[str, ...]:
         cached = self._chains.get(frame)

@@ -29,21 +29,20 @@ from pathlib import Path
 
 import numpy as np
 
-from .config import Config, dump_config
-from .core.layers import LayeredMap, StaticGrid
-from .core.projection import Projection, project
-from .core.sensors import depth_to_points, scan_to_points, transform_points
-from .errors import InputError, OutputError, TransformError, output_error
-from .io.atomic import write_text_atomic
-from .io.decode import RawDepthFrame
-from .io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
-from .transforms import TfBuffer, norm
+from ..config import Config, dump_config
+from ..core.layers import LayeredMap, StaticGrid
+from ..core.projection import Projection, project
+from ..core.sensors import depth_to_points, scan_to_points, transform_points
+from ..errors import InputError, OutputError, TransformError, output_error
+from ..io.atomic import write_text_atomic
+from ..io.decode import RawDepthFrame
+from ..io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
+from ..io.transforms import TfBuffer, norm
 
 NS = 1_000_000_000
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
 IN_FLIGHT = 8  # frames whose rays and voxels the worker threads may compute ahead of integration
 RAY_WORKERS = 2  # worker threads (at most the machine's cores)
-STAGES = ("warmup", "read", "tf", "rays", "cast", "integrate", "ticks", "projection", "output")
 
 
 @dataclass
@@ -83,7 +82,7 @@ class _Counts:
 
 def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
     """S from a build-static output or a map_server YAML, resampled onto the map lattice."""
-    from .io.static_layer import load_static_input
+    from ..io.static_layer import load_static_input
 
     layer = load_static_input(path, wall_height=cfg.replay.static_wall_height)
     g = layer.grid
@@ -153,7 +152,7 @@ class Replay:
         self.trajectory: list[tuple[float, float, float]] = []  # (t_s, x, y) of the robot per frame
         self.tracker = None
         if cfg.replay.plan_goal:
-            from .analysis.plan_tracker import PlanTracker
+            from ..analysis.plan_tracker import PlanTracker
 
             self.tracker = PlanTracker(tuple(cfg.replay.plan_goal), cfg.replay.robot_radius)
         self._next_plan_s = 0.0
@@ -180,7 +179,7 @@ class Replay:
             raise output_error(err, f"the output folder {req.out_dir}") from None
         if not os.access(req.out_dir, os.W_OK):
             raise OutputError(f"cannot write the output folder {req.out_dir}: permission denied; choose another -o")
-        from .outputs import check_replay_outputs
+        from ..outputs.names import check_replay_outputs
 
         check_replay_outputs(req.out_dir, self.cfg, static=req.static is not None)
         try:
@@ -215,7 +214,7 @@ class Replay:
                 lmap.seed_long_term(seeds, 1.0)
                 static_info["long_term_seed_voxels"] = len(seeds)
         if req.resume is not None:
-            from .snapshots import load_resume
+            from ..outputs.snapshots import load_resume
 
             resume_info = load_resume(lmap, req.resume)
 
@@ -224,7 +223,7 @@ class Replay:
         self.tf = tf
         out = req.out_dir
         if cfg.replay.mcap_out:
-            from .io.mcap_out import ReplayMcapWriter
+            from ..io.mcap_out import ReplayMcapWriter
 
             self.mcap = ReplayMcapWriter(out / "replay.mcap")
         self._mounts = mounts  # written to replay.mcap's /tf_static once the log's start is known
@@ -232,7 +231,7 @@ class Replay:
                          t_wall0=t_wall0)  # fmt: skip
 
     def _run(self, logs_paths, out, static_info, resume_info, t_wall0) -> dict:
-        from .io.logs import open_logs
+        from ..io.logs import open_logs
 
         cfg, req, lmap, tf = self.cfg, self.req, self.lmap, self.tf
         stopped_at = None
@@ -441,12 +440,12 @@ class Replay:
                            static=static)  # fmt: skip
 
     def _warm_up(self) -> None:
-        from .core.projection import warm_up
+        from .warmup import warm_up
 
         t0 = time.perf_counter()
         warm_up(self.cfg.map)
         if self.tracker is not None:
-            from .analysis.planner import plan_path
+            from ..analysis.planner import plan_path
 
             plan_path(np.zeros((4, 4), dtype=bool), (0, 0), (3, 3))
         self.counts.stage_s["warmup"] += time.perf_counter() - t0
@@ -491,7 +490,7 @@ class Replay:
 
     def _plan(self, t_s: float) -> None:
         """Plan from the robot's current position on the current P (for the planner latency)."""
-        from .io.mapfile import GridMap
+        from ..io.mapfile import GridMap
 
         if self.robot_xy is None or t_s < self._next_plan_s:
             return
@@ -506,14 +505,14 @@ class Replay:
         if self._next_map_ns is None:
             self._next_map_ns = stamp_ns
             if self.lmap.static is not None:
-                from .core.grid import coord_to_pos
+                from ..core.grid import coord_to_pos
 
                 keys = self.lmap.static.voxel_keys()
                 self.mcap.write_cloud("/ltmap/static_voxels", stamp_ns, coord_to_pos(keys, self.lmap.resolution),
                                       self.fixed_frame)  # fmt: skip
         if not force and stamp_ns < self._next_map_ns:
             return
-        from .core.grid import coord_to_pos
+        from ..core.grid import coord_to_pos
 
         lmap, frame = self.lmap, self.fixed_frame
         p = self._p_now()
@@ -534,7 +533,7 @@ class Replay:
 
     def _publish_fused_scan(self, item: ScanFrame, T: np.ndarray) -> None:
         """/scan_fused: the virtual scan of SPEC 2.3 in the laser's frame and angles."""
-        from .core.projection import virtual_scan
+        from ..core.projection import virtual_scan
 
         if self._p_latest is None:
             self._p_latest = self._p_now()
@@ -551,7 +550,7 @@ class Replay:
                              item.range_min, item.range_max, ranges)  # fmt: skip
 
     def _snapshot(self, t_s: float | None) -> None:
-        from .snapshots import write_snapshot
+        from ..outputs.snapshots import write_snapshot
 
         # staged beside the output: a run that fails leaves the folder's snapshots/ as it was
         paths = write_snapshot(self.lmap, self._staging(), t_s, {"fixed_frame": self.fixed_frame})
@@ -702,7 +701,7 @@ class Replay:
 
     # ------------------------------------------------------------------------------------
     def _clock(self):
-        from .analysis.events import TickClock
+        from ..analysis.events import TickClock
 
         t0 = (self._t0 - self.log_start) / NS if self._t0 is not None else 0.0
         return TickClock(t0, self.cfg.map.layers.tick)
@@ -710,8 +709,9 @@ class Replay:
     def _measurements(self, out: Path) -> tuple[dict, dict]:
         """events.csv and the summaries of report.json: change events with their latencies, and
         wall-clock processing time per frame (by topic) and per tick against the frame period."""
-        from .analysis.events import event_history, events_csv, find_events, percentiles
-        from .core.projection import band_k_range, static_fills
+        from ..analysis.events import event_history, events_csv, find_events, percentiles
+        from ..core.grid import band_k_range
+        from ..core.projection import static_fills
 
         lmap, clock = self.lmap, self._clock()
         pc = self.cfg.map.projection
@@ -765,9 +765,9 @@ class Replay:
     def _plots(self, folder: Path) -> dict[str, str]:
         """plots/: ST and LT of each event over time (Fig. 4), latency box plots (Fig. 5), the
         processing-time histogram, the final map with events (and path), and map_3d.png."""
-        from .core.grid import coord_to_pos
-        from .io.mapfile import GridMap
-        from .plots import write_summary_plots
+        from ..core.grid import coord_to_pos
+        from ..io.mapfile import GridMap
+        from ..viz.plots import write_summary_plots
 
         lmap, cfg = self.lmap, self.cfg
         p = self._p_now()
@@ -801,7 +801,7 @@ class Replay:
 
     def _event_cells(self) -> dict[int, np.ndarray]:
         """{event id: (N, 2) lower-left corners (m) of the xy cells its voxels cover}, for the map plot."""
-        from .analysis.events import _voxel_keys
+        from ..analysis.events import _voxel_keys
 
         lmap = self.lmap
         coords = lmap.D.block_coords[: lmap.D.n_blocks]
@@ -809,7 +809,7 @@ class Replay:
                 for eid, vids in self._members.items()}  # fmt: skip
 
     def _write_maps(self, out: Path) -> dict[str, str]:
-        from .io.mapfile import GridMap, write_map
+        from ..io.mapfile import GridMap, write_map
 
         cfg, lmap = self.cfg, self.lmap
         pc = cfg.map.projection

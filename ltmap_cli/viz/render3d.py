@@ -195,7 +195,7 @@ def _render_matplotlib(path, centers, rgb, n_static, scale, size, title, width, 
     from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from .io.atomic import atomic_path
+    from ..io.atomic import atomic_path
 
     dpi = 100
     fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
@@ -246,7 +246,7 @@ def _render_open3d(path, centers, rgb, size, width, height) -> None:
     import open3d as o3d
     import open3d.visualization.rendering as rendering
 
-    from .io.atomic import atomic_path
+    from ..io.atomic import atomic_path
 
     quads, colours, _dirs = _quads(centers, rgb, size)
     f = len(quads)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from .errors import OutputError
+from ..errors import OutputError
 
 MAP_SUFFIXES = (".pgm", ".yaml", ".png")  # what write_map writes per map
 # plots.write_summary_plots writes these into OUT/plots (name -> file)
