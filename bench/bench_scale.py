@@ -162,7 +162,7 @@ def child(log: Path, out: Path) -> None:
     lmap = run.lmap
     rep.setdefault("stage_s", None)
     fifths = {}
-    for topic, ms in list(run.counts.frame_ms.items()) + [("tick", run.counts.tick_ms)]:
+    for topic, ms in list(run.metrics.frame_ms.items()) + [("tick", run.metrics.tick_ms)]:
         a = np.asarray(ms, dtype=np.float64)
         fifths[topic] = [float(x.mean()) if len(x) else 0.0 for x in np.array_split(a, 5)]
     o_keys = lmap.O.block_coords[: lmap.O.n_blocks].astype(np.int64)

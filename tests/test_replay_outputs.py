@@ -57,7 +57,7 @@ def no_replay(monkeypatch):
     def started(self, *a, **kw):
         raise AssertionError("the replay started")
 
-    monkeypatch.setattr(Replay, "_setup_and_run", started)
+    monkeypatch.setattr(Replay, "_run", started)
 
 
 @pytest.mark.parametrize("name, extra", [

@@ -259,7 +259,7 @@ def test_fast_threaded_replay_equals_serial_replay(tmp_path):
     # or after an install the compilation, seconds)
     assert rep_s["stage_s"]["warmup"] > 0
     for topic, limit_ms in (("/scan", 50.0), ("/camera/depth/image_raw", 400.0)):
-        assert serial.counts.frame_ms[topic][0] < limit_ms, topic
+        assert serial.metrics.frame_ms[topic][0] < limit_ms, topic
 
 
 def test_fast_serial_replay_equals_serial_replay(tmp_path):

@@ -55,7 +55,7 @@ class TickClock:
         return self.start(np.asarray(tick) + 1)
 
 
-def _voxel_keys(blocks: np.ndarray, offs: np.ndarray, block_coords: np.ndarray) -> np.ndarray:
+def voxel_keys(blocks: np.ndarray, offs: np.ndarray, block_coords: np.ndarray) -> np.ndarray:
     local = np.stack([(offs >> 6) & 7, (offs >> 3) & 7, offs & 7], axis=1)
     return block_coords[blocks].astype(np.int64) * 8 + local
 
@@ -200,7 +200,7 @@ def find_events(
     events: list[dict] = []
     members: dict[int, np.ndarray] = {}
     window = max(1, int(round(window_s / clock.tick_s)))
-    all_keys = _voxel_keys(tr[:, 1], tr[:, 2], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
+    all_keys = voxel_keys(tr[:, 1], tr[:, 2], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
     changed_all = p_changes(tr[:, 0], all_keys[:, :2], tr[:, 3], final_cols, static_cols)
     groups = []
     for kind in (APPEAR, DISAPPEAR):

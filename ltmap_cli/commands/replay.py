@@ -20,8 +20,15 @@ class ProgressBar:
         self.width = width
         self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
         self._last_decile = -1
+        self._phase = None
 
     def __call__(self, p) -> None:
+        if p.phase is not None:  # a step after or before mapping the log: named once
+            if p.phase != self._phase:
+                self._phase = p.phase
+                self.stream.write(("\n" if self.tty else "") + f"ltmap: {p.phase} ...\n")
+                self.stream.flush()
+            return
         frac = min(p.log_done_s / p.log_total_s, 1.0) if p.log_total_s > 0 else 1.0
         fill = int(frac * self.width)
         fps = p.frames / p.wall_s if p.wall_s > 0 else 0.0

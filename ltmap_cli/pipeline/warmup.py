@@ -1,11 +1,16 @@
-"""Compile (or load from numba's disk cache) the kernels a replay calls, before the log."""
+"""Compile (or load from numba's disk cache) the kernels a replay calls, before the first frame."""
 
 from __future__ import annotations
+
+import os
+from pathlib import Path
 
 import numpy as np
 
 from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
+
+CORE = Path(__file__).resolve().parent.parent / "core"
 
 
 def warm_up(cfg, static=None) -> None:
@@ -24,3 +29,12 @@ def warm_up(cfg, static=None) -> None:
     m.end_tick()
     p = project(m)
     virtual_scan(m, p, (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)
+
+
+def kernels_cached() -> bool:
+    """Whether numba's disk cache holds the map's kernels (else the first run compiles them):
+    numba keeps an index file (``*.nbi``) per cached function, beside the module or under
+    ``NUMBA_CACHE_DIR``."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    folders = [Path(root)] if root else [CORE / "__pycache__"]
+    return any(folder.is_dir() and any(folder.rglob("layers.*.nbi")) for folder in folders)

@@ -1,0 +1,45 @@
+"""report.json as a typed object: the run's inputs and counts, and what the sinks returned."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+
+@dataclass
+class Report:
+    logs: list[str]
+    fixed_frame: str | None
+    base_frame: str | None
+    topics_used: dict  # {"scans": [...], "clouds": [...], "depth": [...]}
+    topics_not_used: dict  # topic -> why
+    messages_per_topic: dict
+    messages_not_decoded: dict  # reason -> count
+    frames_used: dict  # topic -> frames integrated
+    frames_skipped: dict  # reason -> frames
+    frames_skipped_by_topic: dict
+    frames_over_depth_max_rate: dict
+    frames_without_footprint: int
+    depth_outlier_filter: dict
+    rays: int
+    log_start_ns: int
+    log_duration_s: float
+    wall_time_s: float  # the whole run, outputs and plots included
+    speed_vs_real_time: float | None  # log time / wall_time_s
+    mapping_wall_time_s: float  # up to the map's last snapshot (before map files, events, plots)
+    mapping_speed_vs_real_time: float | None
+    stage_s: dict  # stage -> wall seconds (pipeline/timing.py)
+    ticks: int
+    stopped_at: str | None  # where a damaged or cut-off log stopped being read
+    peak_memory_mb: float
+    map_memory_mb: float
+    voxels: dict
+    static: dict | None
+    resume: dict | None
+    snapshots: list = field(default_factory=list)  # SnapshotSink
+    events: dict | None = None  # EventsSink
+    processing_latency_ms: dict | None = None  # MetricsSink
+    outputs: dict = field(default_factory=dict)  # every sink: name -> path
+
+    def to_dict(self) -> dict:
+        return {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
