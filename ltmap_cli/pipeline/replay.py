@@ -27,6 +27,7 @@ from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, TransformError, output_error
 from ..io.atomic import write_text_atomic
+from ..io.decode import RawDepthFrame
 from ..io.logs import open_logs
 from ..io.transforms import TfBuffer
 from ..outputs.names import check_replay_outputs
@@ -51,7 +52,7 @@ from .sinks import (
     inputs_comment,
 )
 from .timing import StageTimer
-from .warmup import kernels_cached, warm_up
+from .warmup import BackgroundCompile, kernels_cached, warm_depth, warm_up
 
 NS = 1_000_000_000
 
@@ -142,6 +143,8 @@ class Replay:
         self.lmap: LayeredMap | None = None
         self.sinks: list[Sink] = []
         self._last_progress = 0.0
+        self._compile: BackgroundCompile | None = None
+        self._warm_depth: set = set()  # (dtype, contiguous) of the raw depth images warmed up
         self._done_s = 0.0  # log time done, for the progress of the phases after the log
         self.log_total_s = 0.0
         self._warm = False
@@ -163,6 +166,9 @@ class Replay:
             if created:  # a failed run into a new folder leaves nothing behind
                 shutil.rmtree(out, ignore_errors=True)
             raise
+        finally:
+            if self._compile is not None:
+                self._compile.stop()
 
     # ------------------------------------------------------------------------------------
     def _setup(self) -> tuple[RunState, TfBuffer, list, dict | None, dict | None]:
@@ -220,6 +226,8 @@ class Replay:
                               depth_topics=cfg.replay.depth_topics)  # fmt: skip
             run.log_start_ns = logs.start_ns
             self.log_total_s = max((logs.end_ns - logs.start_ns) / NS, 1e-9)
+            if not kernels_cached():  # the first run: compile while the log is read and checked
+                self._compile = BackgroundCompile(["base", "outputs"] + (["depth16"] if sel.depths and self.fast else []))
             for s in self.sinks:
                 if isinstance(s, McapSink):
                     s.start(run, tf)
@@ -338,6 +346,11 @@ class Replay:
         else:
             if not self._warm:
                 self._warm_up()
+            raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
+            if raw is not None and (key := (raw.dtype.newbyteorder("="), raw.flags.c_contiguous)) not in self._warm_depth:
+                self._warm_depth.add(key)
+                with self.timer("warmup"):
+                    warm_depth(self.cfg.map, *key)
             if self.state.fixed_frame is None:
                 self.state.fixed_frame = self.scheduler.fixed_frame
             self.executor.submit(event, self.caster.cast, event.frame, event.T, event.robot)
@@ -345,13 +358,14 @@ class Replay:
                 self._integrate(*job)
 
     def _warm_up(self) -> None:
-        """The kernels' first calls, before the first frame is cast (so a log whose frames are all
-        skipped fails before any compiling)."""
+        """The kernels' first calls, before the first frame is cast: so a log whose frames are all
+        skipped fails before any compiling is waited for, and no frame's time includes it."""
         self._warm = True
-        if not kernels_cached():
-            self._report_progress(None, force=True, phase="compiling kernels (first run only)")
         with self.timer("warmup"):
-            warm_up(self.cfg.map)
+            if self._compile is not None:
+                self._report_progress(None, force=True, phase="compiling kernels (first run only)")
+                self._compile.wait()
+            warm_up(self.cfg.map, ["base", "outputs"])
             if self.cfg.replay.plan_goal:
                 from ..analysis.planner import plan_path
 

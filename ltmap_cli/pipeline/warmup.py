@@ -1,34 +1,81 @@
-"""Compile (or load from numba's disk cache) the kernels a replay calls, before the first frame."""
+"""The kernels' first calls, before the first frame: numba compiles them after an install (a
+minute of CPU in one process), then loads them from its disk cache (well under a second).
+
+Compiling is split into groups: ``base`` (rays of points and scans, voxels, the tick rules, the
+projection, the virtual scan) and one per depth image encoding (``depth16``: 16UC1/mono16,
+``depth32``: 32FC1), and a run warms only the groups it uses. On a cold cache
+``BackgroundCompile`` compiles the groups a run will need in child processes, one per group, in
+parallel with each other and with opening and checking the log, so that the first run on two
+cores waits for the slowest group instead of the sum, and a log that fails its checks (a missing
+transform) fails before any compiling is waited for. The children write numba's cache; the replay
+then loads the kernels from it.
+"""
 
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
 
+from ..core.config import MapConfig
 from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
 
 CORE = Path(__file__).resolve().parent.parent / "core"
 
 
-def warm_up(cfg, static=None) -> None:
-    """Call every kernel of a replay once on a throw-away map, so that compiling them (first run
-    after an install) or loading them from numba's disk cache happens here, not in the first
-    frame's or tick's measured time: ray casting (points, and depth images in both encodings),
-    the tick rules, the projection and the virtual scan."""
-    m = LayeredMap(cfg, static=static)
+def _pose() -> np.ndarray:
     T = np.eye(4)
     T[2, 3] = 1.0
+    return T
+
+
+def warm_base(cfg: MapConfig) -> None:
+    m = LayeredMap(cfg)
+    T = _pose()
     m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5], [1.0, -0.1, 0.02]], [True, False], max_range=4.0, robot_pose=T)
     m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5]], None, max_range=4.0, robot_pose=None, dedupe=False)
-    for depth in (np.full((2, 2), 1000, dtype=np.uint16), np.full((2, 2), 1.0, dtype=np.float32)):
-        ends, kind = m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T)
-        m.integrate_rays(T[:3, 3], ends, kind)
     m.end_tick()
     p = project(m)
     virtual_scan(m, p, (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)
+
+
+def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
+    """The fused depth kernel for raw pixels of ``dtype``, C-contiguous or a strided view (numba
+    compiles one specialization per dtype and layout)."""
+    m = LayeredMap(cfg)
+    T = _pose()
+    depth = np.full((2, 4), 1000 if np.dtype(dtype).kind == "u" else 1.0, dtype=dtype)
+    depth = depth[:, :2] if contiguous else depth[:, ::2]
+    if contiguous:
+        depth = np.ascontiguousarray(depth)
+    ends, kind = m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T)
+    m.integrate_rays(T[:3, 3], ends, kind)
+
+
+def warm_outputs(cfg: MapConfig) -> None:
+    """The kernels of the outputs: the .ot snapshot's tree walk and the events' grouping."""
+    from ..analysis.events import _group
+    from ..outputs.snapshots import snapshot_ot_bytes
+
+    m = LayeredMap(cfg)
+    m.seed_long_term(np.array([[1, 1, 1], [2, 1, 1]], dtype=np.int64), 1.0)
+    m.integrate([0.0, 0.0, 0.5], [[1.0, 0.1, 0.5]], None, max_range=4.0, robot_pose=None, dedupe=False)
+    snapshot_ot_bytes(m)
+    _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
+
+
+GROUPS = {"base": warm_base, "outputs": warm_outputs, "depth16": lambda c: warm_depth(c, np.uint16),
+          "depth32": lambda c: warm_depth(c, np.float32)}  # fmt: skip
+
+
+def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
+    """Call the kernels of ``groups`` once on throw-away maps (every group by default)."""
+    for g in groups:
+        GROUPS[g](cfg)
 
 
 def kernels_cached() -> bool:
@@ -36,5 +83,35 @@ def kernels_cached() -> bool:
     numba keeps an index file (``*.nbi``) per cached function, beside the module or under
     ``NUMBA_CACHE_DIR``."""
     root = os.environ.get("NUMBA_CACHE_DIR")
-    folders = [Path(root)] if root else [CORE / "__pycache__"]
-    return any(folder.is_dir() and any(folder.rglob("layers.*.nbi")) for folder in folders)
+    folder = Path(root) if root else CORE / "__pycache__"
+    if not folder.is_dir():
+        return False
+    newest = max((f.stat().st_mtime for f in folder.rglob("*.nbi")), default=None)
+    # an index older than the source is stale: numba compiles the kernels again
+    return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
+
+
+class BackgroundCompile:
+    """Child processes that compile kernel groups into numba's cache, started at once;
+    ``wait()`` before calling the kernels, ``stop()`` when the run ends early."""
+
+    def __init__(self, groups):
+        self.procs = []
+        for g in groups:
+            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, g], stdin=subprocess.DEVNULL,
+                                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
+
+    def wait(self) -> None:
+        for p in self.procs:
+            p.wait()
+        self.procs = []
+
+    def stop(self) -> None:
+        for p in self.procs:
+            p.kill()
+            p.wait()
+        self.procs = []
+
+
+if __name__ == "__main__":  # a BackgroundCompile child: python -m ltmap_cli.pipeline.warmup GROUP
+    warm_up(MapConfig(), sys.argv[1:])
