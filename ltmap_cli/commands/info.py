@@ -16,6 +16,28 @@ from pathlib import Path
 
 import click
 
+NS = 1_000_000_000
+OFFSET_SHOWN_S = 1.0  # header stamps this far from record time (either way) are shown
+
+
+def _offset_text(ns: int | float) -> str:
+    """A time difference (ns) as ``33194330 s (384.2 days)`` / ``2.50 s``, without sign."""
+    s_ = abs(ns) / NS
+    text = f"{s_:.0f} s" if s_ >= 100 else f"{s_:.2f} s"
+    return text + (f" ({s_ / 86400:.1f} days)" if s_ >= 86400 else "")
+
+
+def stamp_offset_lines(offsets_s: dict[str, float]) -> list[str]:
+    """``header stamps are X s before record time`` per topic whose first header stamp is at
+    least OFFSET_SHOWN_S from its record time (a bag re-recorded from playback, sim time, an
+    unsynced clock)."""
+    out = []
+    for topic, off in sorted(offsets_s.items()):
+        if abs(off) >= OFFSET_SHOWN_S:
+            side = "before" if off > 0 else "after"
+            out.append(f"{topic}: header stamps are {_offset_text(off * NS)} {side} record time")
+    return out
+
 
 def _rate(count: int, first: int | None, last: int | None) -> str:
     if count < 2 or first is None or last is None or last <= first:
@@ -60,6 +82,7 @@ def gather(
         last: dict[str, int] = {}
         sensor_first: dict[str, object] = {}
         sensor_where: dict[str, str] = {}
+        offset: dict[str, int] = {}  # topic -> record time - header stamp of its first stamped message (ns)
         warnings: list[str] = []
         static = set(sel.static_tf)
         sensors = set(sel.sensor_topics) | set(sel.skipped)
@@ -82,13 +105,19 @@ def gather(
                         sensor_first[topic] = None
                     continue
                 if topic in tf_topics:
-                    for s in dec.decode_tf(msg, static=topic in static):
+                    samples = dec.decode_tf(msg, static=topic in static)
+                    for s in samples:
                         buf.add(s)
+                    if samples and topic not in static and topic not in offset:
+                        offset[topic] = t - samples[0].stamp_ns
                 elif topic in odom_topics:
-                    buf.add(dec.decode_odometry(msg))
+                    o = dec.decode_odometry(msg)
+                    buf.add(o)
+                    offset.setdefault(topic, t - o.stamp_ns)
                 else:
                     sensor_first[topic] = msg
                     sensor_where[topic] = where
+                    offset.setdefault(topic, t - dec.stamp_ns(msg.header.stamp))
         stopped = logs.stats.stopped_at
         topics = logs.topics
         names = [str(p) for p in paths]
@@ -96,8 +125,10 @@ def gather(
 
     frames = buf.frames
     error = None
+    sensor_frames = {dec.frame_name(m.header.frame_id) for t, m in sensor_first.items()
+                     if m is not None and t in sel.sensor_topics} - {""}  # fmt: skip
     try:
-        fixed = buf.fixed_frame(fixed_frame)
+        fixed = buf.fixed_frame(fixed_frame, sensor_frames)
     except TransformError as err:
         fixed = None
         if fixed_frame:  # a frame asked for and not in tf: replay stops on it, so does info
@@ -114,12 +145,23 @@ def gather(
                     warnings.append(f"{topic}: no messages could be read")
                 continue
             frame = dec.frame_name(msg.header.frame_id)
-            used[topic] = f"{kind}, frame {frame}"
+            used[topic] = f"{kind}, frame {frame or '(empty header.frame_id)'}"
+            if not frame:
+                warnings.append(f"{topic}: its first message has an empty header.frame_id: replay skips such "
+                                f"messages (nothing tells where the sensor was)")
             if kind == "laser":
                 try:  # the check replay makes on every scan
-                    dec.decode_scan(msg, topic, sensor_where[topic])
+                    sf = dec.decode_scan(msg, topic, sensor_where[topic])
                 except LogReadError as err:
                     warnings.append(f"{topic}: replay would stop on its first message: {err}")
+                else:
+                    if sf.angle_max_off:
+                        n = len(sf.ranges)
+                        warnings.append(
+                            f"{topic}: angle_max {float(msg.angle_max):.6g} disagrees with its {n} ranges from "
+                            f"angle_min {sf.angle_min:.6g} by angle_increment {sf.angle_increment:.6g} (last beam "
+                            f"at {sf.angle_min + (n - 1) * sf.angle_increment:.6g}); replay places beam i at "
+                            f"angle_min + i * angle_increment, as ROS does, and counts such scans")
             if kind == "depth":
                 used[topic] += f" (CameraInfo {sel.depths[topic]})"
                 enc = str(getattr(msg, "encoding", ""))
@@ -128,7 +170,7 @@ def gather(
                         f"{topic}: encoding {enc!r} is not a depth encoding (16UC1, 32FC1); replay "
                         f"would stop on it: leave it out with --depth-topic naming others"
                     )
-            if fixed is not None:
+            if fixed is not None and frame:
                 problem = buf.connection_problem(fixed, frame)
                 if problem:
                     warnings.append(f"{topic}: every frame would be skipped: {problem}")
@@ -147,6 +189,22 @@ def gather(
             f"{n} samples of {edge} ignored: the edge also comes from a stronger source "
             f"(--tf mount, then /tf and /tf_static, then odometry)"
         )
+    for what, n in buf.unnamed.items():
+        if what.startswith("nav_msgs/Odometry") and what.endswith("(empty child_frame_id)"):
+            todo = ("it does not say which frame it moves, so ltmap cannot use it: publish the robot's "
+                    "pose in /tf, or map in a sensor's own frame with --fixed-frame "
+                    f"{min(sensor_frames) if sensor_frames else '<frame>'}")
+        else:
+            todo = "tf refuses an empty frame name: fix the recording, or give the transform with --tf"
+        warnings.append(f"{n} samples {what} not used: {todo}")
+    tf_offsets = {k: v for k, v in offset.items() if k in tf_topics or k in odom_topics}
+    for topic in sel.sensor_topics:
+        if topic not in offset or not tf_offsets:
+            continue
+        ref, ref_off = min(tf_offsets.items(), key=lambda kv: abs(kv[1] - offset[topic]))
+        if abs(ref_off - offset[topic]) > 10 * NS:
+            warnings.append(f"{topic}: its header stamps and those of {ref} are {_offset_text(offset[topic] - ref_off)} "
+                            f"apart (relative to record time): its frames cannot be placed with that tf")
     if stopped:
         warnings.append(f"log is truncated or corrupt: {stopped}")
     starts = [v for v in first.values()]
@@ -168,6 +226,8 @@ def gather(
         "frames": sorted(frames),
         "tree": buf.tree_text(),
         "fixed_frame": fixed,
+        "sensor_frames": sorted(sensor_frames),
+        "stamp_offset_s": {k: v / NS for k, v in sorted(offset.items())},
         "used": used,
         "tf_topics": sel.tf,
         "odometry_topics": sel.odometry,
@@ -222,6 +282,11 @@ def render(r: dict) -> str:
     if r["tree"]:
         lines.extend("  " + ln for ln in r["tree"].splitlines())
     lines.append(f"fixed frame: {r['fixed_frame'] or '- (none)'}")
+    shifted = stamp_offset_lines(r.get("stamp_offset_s") or {})
+    if shifted:
+        lines.append("")
+        lines.append("header stamps against record time:")
+        lines.extend("  " + ln for ln in shifted)
     lines.append("")
     if r["warnings"]:
         lines.append("warnings:")

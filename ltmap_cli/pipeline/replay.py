@@ -70,6 +70,7 @@ class _Counts:
     used: Counter = field(default_factory=Counter)  # topic -> frames integrated
     skipped: Counter = field(default_factory=Counter)  # reason -> frames skipped
     skipped_by_topic: Counter = field(default_factory=Counter)
+    angle_max_off: Counter = field(default_factory=Counter)  # topic -> scans whose angle_max disagrees
     no_footprint: int = 0
     rays: int = 0
     frame_ms: dict = field(default_factory=dict)  # topic -> [wall ms per frame]
@@ -93,6 +94,7 @@ def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
         "cells": [int(g.data.shape[1]), int(g.data.shape[0])],
         "wall_height": layer.wall_height,
         "static_voxels": int((static.top_k + 1).clip(min=0).sum()),
+        "unknown_cells": int((static.occ < 0).sum()),  # on the map lattice: kept unknown in S and P
     }
     return static, info, layer
 
@@ -353,6 +355,7 @@ class Replay:
             "frames_used": dict(self.counts.used),
             "frames_skipped": dict(self.counts.skipped),
             "frames_skipped_by_topic": dict(self.counts.skipped_by_topic),
+            "scans_angle_max_off": dict(self.counts.angle_max_off),
             "frames_over_depth_max_rate": rate_skipped,
             "frames_without_footprint": self.counts.no_footprint,
             "depth_outlier_filter": {
@@ -403,9 +406,11 @@ class Replay:
         self.counts.skipped[reason] += 1
         self.counts.skipped_by_topic[topic] += 1
 
-    def _choose_frames(self) -> None:
+    def _choose_frames(self, sensor_frames: set[str]) -> None:
+        """The fixed frame (``TfBuffer.fixed_frame``: a sensor's own frame may be asked for) and
+        the robot's base frame, once tf has had the samples before the first frame."""
         frames = self.tf.frames
-        self.fixed_frame = self.tf.fixed_frame(self.cfg.replay.fixed_frame)
+        self.fixed_frame = self.tf.fixed_frame(self.cfg.replay.fixed_frame, sensor_frames)
         base = self.cfg.map.robot.base_frame
         if base not in frames:
             base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
@@ -578,7 +583,9 @@ class Replay:
         or here) and integrate frames in order."""
         t_start = time.perf_counter()
         if self.fixed_frame is None:
-            self._choose_frames()
+            self._choose_frames({item.frame_id, *(p[3].frame_id for p in self._pending)})
+        if isinstance(item, ScanFrame) and item.angle_max_off:
+            self.counts.angle_max_off[topic] += 1
         if not item.frame_id:
             self._skip(topic, f"{topic}: message has an empty header.frame_id")
             return
