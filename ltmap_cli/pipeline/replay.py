@@ -70,6 +70,8 @@ class _Counts:
     used: Counter = field(default_factory=Counter)  # topic -> frames integrated
     skipped: Counter = field(default_factory=Counter)  # reason -> frames skipped
     skipped_by_topic: Counter = field(default_factory=Counter)
+    used_by_log: Counter = field(default_factory=Counter)  # index in request.logs -> frames integrated
+    skipped_by_log: Counter = field(default_factory=Counter)
     angle_max_off: Counter = field(default_factory=Counter)  # topic -> scans whose angle_max disagrees
     no_footprint: int = 0
     rays: int = 0
@@ -355,6 +357,8 @@ class Replay:
             "frames_used": dict(self.counts.used),
             "frames_skipped": dict(self.counts.skipped),
             "frames_skipped_by_topic": dict(self.counts.skipped_by_topic),
+            "frames_used_by_log": {str(p): self.counts.used_by_log[i] for i, p in enumerate(req.logs)},
+            "frames_skipped_by_log": {str(p): self.counts.skipped_by_log[i] for i, p in enumerate(req.logs)},
             "scans_angle_max_off": dict(self.counts.angle_max_off),
             "frames_over_depth_max_rate": rate_skipped,
             "frames_without_footprint": self.counts.no_footprint,
@@ -402,9 +406,10 @@ class Replay:
         done = min(max((log_ns - self.log_start) / NS, 0.0), self.log_total_s)
         self.progress(Progress(done, self.log_total_s, sum(self.counts.used.values()), now - self._t_wall0))
 
-    def _skip(self, topic: str, reason: str) -> None:
+    def _skip(self, topic: str, reason: str, log: int = 0) -> None:
         self.counts.skipped[reason] += 1
         self.counts.skipped_by_topic[topic] += 1
+        self.counts.skipped_by_log[log] += 1
 
     def _choose_frames(self, sensor_frames: set[str]) -> None:
         """The fixed frame (``TfBuffer.fixed_frame``: a sensor's own frame may be asked for) and
@@ -587,11 +592,11 @@ class Replay:
         if isinstance(item, ScanFrame) and item.angle_max_off:
             self.counts.angle_max_off[topic] += 1
         if not item.frame_id:
-            self._skip(topic, f"{topic}: message has an empty header.frame_id")
+            self._skip(topic, f"{topic}: message has an empty header.frame_id", item.log)
             return
         T, reason = self.tf.try_lookup(self.fixed_frame, item.frame_id, item.stamp_ns)
         if T is None:
-            self._skip(topic, reason)
+            self._skip(topic, reason, item.log)
             return
         robot, _ = self.tf.try_lookup(self.fixed_frame, self.base_frame, item.stamp_ns)
         lookup_s = time.perf_counter() - t_start
@@ -657,7 +662,7 @@ class Replay:
         drop = flying_pixel_mask(depth, k.fx, k.fy, k.cx, k.cy, radius=rc.depth_outlier_radius,
                                  min_neighbors=rc.depth_outlier_min_neighbors)  # fmt: skip
         depth[drop] = np.nan
-        return DepthFrame(item.stamp_ns, item.frame_id, depth, k, item.topic), int(drop.sum())
+        return DepthFrame(item.stamp_ns, item.frame_id, depth, k, item.topic, log=item.log), int(drop.sum())
 
     def _drain(self, keep: int) -> None:
         """Integrate queued frames in order until at most ``keep`` are left (and none whose rays
@@ -690,6 +695,7 @@ class Replay:
             c.depth_filtered_frames += 1
             c.depth_filtered_pixels += dropped
         c.used[topic] += 1
+        c.used_by_log[item.log] += 1
         c.rays += r.rays
         self._last_stamp = max(getattr(self, "_last_stamp", 0), item.stamp_ns)
         fused_s = 0.0
