@@ -65,12 +65,15 @@ def gather(
     tf_mounts=(),
     fixed_frame: str = "",
     allow_truncated: bool = False,
+    base_frame: str | None = None,
 ) -> dict:
-    """Everything `info` shows, as a dict (also used by tests). Raises like the readers."""
+    """Everything `info` shows, as a dict (also used by tests and ``--json``). Raises like the
+    readers. ``base_frame``: ``map.robot.base_frame`` (default: its default)."""
+    from ..core.config import MapConfig
     from ..errors import LogReadError, TransformError
     from ..io import decode as dec
     from ..io.logs import IMAGE, TruncatedLogError, open_logs
-    from ..io.transforms import TfBuffer
+    from ..io.transforms import TfBuffer, choose_base_frame
 
     with open_logs(paths, allow_truncated=True) as logs:
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
@@ -226,6 +229,7 @@ def gather(
         "frames": sorted(frames),
         "tree": buf.tree_text(),
         "fixed_frame": fixed,
+        "base_frame": choose_base_frame(frames, base_frame or MapConfig().robot.base_frame),
         "sensor_frames": sorted(sensor_frames),
         "stamp_offset_s": {k: v / NS for k, v in sorted(offset.items())},
         "used": used,
@@ -282,6 +286,8 @@ def render(r: dict) -> str:
     if r["tree"]:
         lines.extend("  " + ln for ln in r["tree"].splitlines())
     lines.append(f"fixed frame: {r['fixed_frame'] or '- (none)'}")
+    lines.append(f"base frame:  {r['base_frame']}" + ("" if r["base_frame"] in r["frames"] else
+                                                      " (not in tf: the robot's footprint is not placed)"))
     shifted = stamp_offset_lines(r.get("stamp_offset_s") or {})
     if shifted:
         lines.append("")
@@ -316,12 +322,20 @@ def render(r: dict) -> str:
 )
 @click.option("--fixed-frame", default="", help="Fixed frame (default: map if tf has it, else odom).")
 @click.option("--allow-truncated", is_flag=True, help="Exit 0 on a truncated or corrupt log.")
+@click.option("--json", "as_json", is_flag=True, help="Print what info found as JSON (the same claims).")
 def info(
-    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated
+    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated,
+    as_json,
 ) -> None:
     """Show what LOG(s) hold: topics, types, counts, duration, rates, the tf tree, which topics
-    `ltmap replay` would use, and warnings for what it would skip and why."""
+    `ltmap replay` would use, the fixed and base frames it would use, and warnings for what it
+    would skip and why."""
     r = gather(list(logs), scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated)
-    click.echo(render(r))
+    if as_json:
+        import json
+
+        click.echo(json.dumps({k: (str(v) if k == "error" else v) for k, v in r.items()}, indent=2))
+    else:
+        click.echo(render(r))
     if "error" in r:
         raise r["error"]

@@ -420,3 +420,17 @@ def no_fixed_frame_reason(names: set[str], sensors: list[str], roots: dict[str, 
         return f"{have}; choose the fixed frame with --fixed-frame <frame>"
     mount = f"--tf odom:{placed[0] if placed else roots.get(sensors[0], sensors[0])}=x,y,z,roll,pitch,yaw"
     return f"{have}: choose the fixed frame with {' or '.join(ways)}, or give the transform from a fixed frame with {mount}"
+
+
+BASE_FRAMES = ("base_link", "base_footprint")  # the robot's frame when the configured one is not in tf
+
+
+def choose_base_frame(frames: set[str] | list[str], preferred: str) -> str:
+    """The robot's base frame: ``preferred`` (``map.robot.base_frame``) when tf has it, else
+    ``base_link`` or ``base_footprint`` when tf has one, else ``preferred`` (the robot's
+    footprint then cannot be placed and is counted as missing)."""
+    names = {norm(f) for f in frames}
+    want = norm(preferred)
+    if want in names:
+        return want
+    return next((f for f in BASE_FRAMES if f in names), want)

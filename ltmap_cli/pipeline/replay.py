@@ -37,7 +37,7 @@ from ..errors import InputError, OutputError, TransformError, output_error
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
-from ..io.transforms import TfBuffer, norm
+from ..io.transforms import TfBuffer, choose_base_frame, norm
 
 NS = 1_000_000_000
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
@@ -414,12 +414,8 @@ class Replay:
     def _choose_frames(self, sensor_frames: set[str]) -> None:
         """The fixed frame (``TfBuffer.fixed_frame``: a sensor's own frame may be asked for) and
         the robot's base frame, once tf has had the samples before the first frame."""
-        frames = self.tf.frames
         self.fixed_frame = self.tf.fixed_frame(self.cfg.replay.fixed_frame, sensor_frames)
-        base = self.cfg.map.robot.base_frame
-        if base not in frames:
-            base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
-        self.base_frame = base
+        self.base_frame = choose_base_frame(self.tf.frames, self.cfg.map.robot.base_frame)
 
     def _inputs_comment(self) -> str:
         """config.yaml's header: the inputs of this run, which are not parameters, so that the run
