@@ -431,3 +431,28 @@ def test_the_realsense_recording_replays_in_its_depth_frame_and_its_voxels_lie_o
           f"95th percentile {np.percentile(dist, 95) * 100:.1f} cm from the plane")
     assert on.sum() > 200
     assert np.median(dist) < 0.03 and np.percentile(dist, 95) < 0.06
+
+
+def test_a_map_frame_that_comes_late_is_said_and_can_be_chosen(tmp_path):
+    """A localizer that starts publishing map -> odom 1.5 s into the log: replay chooses its fixed
+    frame at its first frame (odom), and info says so; --fixed-frame map maps in map, skipping the
+    frames before map -> odom exists."""
+    from logfactory import tf
+
+    msgs = room_messages(0.0, 3.0, False)
+    t_map = T0 + 1_500_000_000
+    msgs += [tf(t, [("map", "odom")]) for t in range(t_map, T0 + 3_300_000_000, 100_000_000)]
+    msgs.sort(key=lambda m: m.log_time_ns)
+    log = write_log(tmp_path / "late.mcap", "mcap-ros2", msgs)
+    claims = gather([log])
+    r = invoke("replay", log, "-o", tmp_path / "o")
+    assert r.exit_code == 0, r.output
+    assert claims["fixed_frame"] == report(tmp_path / "o")["fixed_frame"] == "odom"
+    assert any(w.startswith("tf has map only after the first sensor frames") for w in claims["warnings"])
+    assert gather([log], fixed_frame="map")["fixed_frame"] == "map"
+    r = invoke("replay", log, "-o", tmp_path / "m", "--fixed-frame", "map")
+    assert r.exit_code == 0, r.output
+    rep = report(tmp_path / "m")
+    assert rep["fixed_frame"] == "map"
+    early = sum(1 for m in msgs if m.topic == "/scan" and m.log_time_ns < t_map)
+    assert sum(rep["frames_skipped"].values()) == early and rep["frames_used"]["/scan"] == 15 - early

@@ -69,11 +69,12 @@ def gather(
 ) -> dict:
     """Everything `info` shows, as a dict (also used by tests and ``--json``). Raises like the
     readers. ``base_frame``: ``map.robot.base_frame`` (default: its default)."""
+    from ..config import ReplayConfig
     from ..core.config import MapConfig
     from ..errors import LogReadError, TransformError
     from ..io import decode as dec
     from ..io.logs import IMAGE, TruncatedLogError, open_logs
-    from ..io.transforms import TfBuffer, choose_base_frame
+    from ..io.transforms import TfBuffer, choose_base_frame, choose_fixed_frame
 
     with open_logs(paths, allow_truncated=True) as logs:
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
@@ -95,7 +96,17 @@ def gather(
         # when they can be (the generic deserializers cost ~0.15 ms a message plus building the
         # rosbags type store); anything unusual goes through the generic deserializer
         parsers = {name: dec.CDR_PARSERS.get(t.msgtype) for name, t in logs.topics.items()}
+        # replay chooses the fixed frame when its first sensor frame is released (tf_wait after
+        # it, in log time), from the tf it has by then: the frames at that point, as replay sees them
+        used_sensors = set(sel.sensor_topics)
+        wait_ns = int(ReplayConfig().tf_wait * NS)
+        release_ns: int | None = None
+        early: set[str] | None = None
         for topic, t, decode, where in logs.raw(logs.topics):
+            if release_ns is None and topic in used_sensors:
+                release_ns = t + wait_ns
+            if early is None and release_ns is not None and t > release_ns:
+                early = buf.frames
             counts[topic] = counts.get(topic, 0) + 1
             first.setdefault(topic, t)
             last[topic] = t
@@ -127,11 +138,20 @@ def gather(
         formats = logs.formats
 
     frames = buf.frames
+    if early is None:
+        early = frames
     error = None
     sensor_frames = {dec.frame_name(m.header.frame_id) for t, m in sensor_first.items()
                      if m is not None and t in sel.sensor_topics} - {""}  # fmt: skip
     try:
         fixed = buf.fixed_frame(fixed_frame, sensor_frames)
+        if not fixed_frame:  # replay's own choice: from the frames it has at its first sensor frame
+            roots = {f: (buf.root(f) if f in frames else f) for f in sensor_frames}
+            fixed = choose_fixed_frame(early, "", sensor_frames, roots, [f for f in early if f not in buf.edges])
+            if "map" in frames and fixed != "map":
+                warnings.append("tf has map only after the first sensor frames (a localizer that starts later?): "
+                                f"replay maps in {fixed}; with --fixed-frame map it maps in map, skipping the "
+                                "frames before map -> odom exists")
     except TransformError as err:
         fixed = None
         if fixed_frame:  # a frame asked for and not in tf: replay stops on it, so does info

@@ -150,6 +150,7 @@ class Replay:
         self.counts = _Counts()
         self.lmap: LayeredMap | None = None
         self.fixed_frame: str | None = None
+        self._fixed_later: tuple | None = None  # (--fixed-frame, sensor frames) when tf lacked it at the start
         self.base_frame: str | None = None
         self.snapshots: list[dict] = []
         self.robot_xy: tuple[float, float] | None = None
@@ -309,6 +310,8 @@ class Replay:
 
         total_used = sum(self.counts.used.values())
         if total_used == 0:
+            if self._fixed_later is not None:  # --fixed-frame named a frame the whole log lacks
+                self.tf.fixed_frame(*self._fixed_later)  # raises info's line for it
             if self.counts.skipped:
                 reason, n = self.counts.skipped.most_common(1)[0]
                 raise TransformError(f"every sensor frame was skipped ({n} x): {reason}")
@@ -414,7 +417,16 @@ class Replay:
     def _choose_frames(self, sensor_frames: set[str]) -> None:
         """The fixed frame (``TfBuffer.fixed_frame``: a sensor's own frame may be asked for) and
         the robot's base frame, once tf has had the samples before the first frame."""
-        self.fixed_frame = self.tf.fixed_frame(self.cfg.replay.fixed_frame, sensor_frames)
+        requested = self.cfg.replay.fixed_frame
+        try:
+            self.fixed_frame = self.tf.fixed_frame(requested, sensor_frames)
+        except TransformError:
+            if not requested:
+                raise
+            # not in tf yet (a map frame that a localizer starts publishing later): frames are
+            # skipped until it comes; if it never does, the run ends with choose_fixed_frame's line
+            self.fixed_frame = norm(requested)
+            self._fixed_later = (requested, sensor_frames)
         self.base_frame = choose_base_frame(self.tf.frames, self.cfg.map.robot.base_frame)
 
     def _inputs_comment(self) -> str:
