@@ -137,6 +137,28 @@ def _odometry_instead_of_tf(child: str):
     return change
 
 
+def test_frame_ids_with_a_slash_or_spaces_are_one_frame_for_info_and_replay(tmp_path):
+    def untidy(m: Msg) -> Msg:
+        if m.topic == "/scan":
+            m.fields["header"]["frame_id"] = " /laser "
+        elif m.topic == "/tf_static":
+            m.fields["transforms"][0]["child_frame_id"] = "/laser"
+        elif m.topic == "/tf":
+            m.fields["transforms"][0]["header"]["frame_id"] = "/odom"
+        return m
+
+    log = room_log(tmp_path, change=untidy)
+    claims = gather([log])
+    assert claims["frames"] == ["base_link", "laser", "odom"] and claims["sensor_frames"] == ["laser"]
+    assert claims["used"]["/scan"] == "laser, frame laser" and claims["warnings"] == []
+    r = invoke("replay", log, "-o", tmp_path / "o")
+    assert r.exit_code == 0, r.output
+    rep = report(tmp_path / "o")
+    assert rep["frames_skipped"] == {} and rep["fixed_frame"] == claims["fixed_frame"] == "odom"
+    assert invoke("replay", room_log(tmp_path, "tidy.mcap"), "-o", tmp_path / "tidy").exit_code == 0
+    assert (tmp_path / "o" / "map.pgm").read_bytes() == (tmp_path / "tidy" / "map.pgm").read_bytes()
+
+
 def test_odometry_with_an_empty_child_frame(tmp_path):
     """info never prints a blank frame and names the empty child_frame_id; replay fails in one line
     naming --fixed-frame and --tf with frames that exist; --fixed-frame with them then works."""

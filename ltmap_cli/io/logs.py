@@ -175,7 +175,7 @@ def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_to
         else:
             if not picked and "depth" not in t.name.lower():
                 sel.skipped[t.name] = ("Image whose name does not say depth (a colour camera?); "
-                                       "if it is 16UC1/32FC1 depth, choose it with --depth-topic")
+                                       "if it is 16UC1/mono16/32FC1 depth, choose it with --depth-topic")
                 continue
             info = _camera_info_for(t.name, topics)
             if info is None:
