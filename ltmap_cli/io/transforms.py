@@ -298,7 +298,7 @@ class TfBuffer:
             parent = next((f for f in ("base_link", "base_footprint") if f in frames), target)
             return (f"no transform {parent} -> {source}: frame {source} is not in tf; give its mount with "
                     f"--tf {parent}:{source}=x,y,z,roll,pitch,yaw")
-        known = ", ".join(sorted(frames)[:12]) or "none"
+        known = bounded(sorted(frames))
         return (f"no transform {target} -> {source}: frame {target} is not in tf (frames: {known}); "
                 f"choose another with --fixed-frame or give it with --tf")
 
