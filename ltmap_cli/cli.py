@@ -11,6 +11,7 @@ import importlib
 import importlib.util
 import os
 import sys
+import traceback
 import warnings
 
 import click
@@ -92,7 +93,8 @@ class LazyGroup(click.Group):
             return super().invoke(ctx)
         except (LtmapError, OSError) as exc:
             if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
-                raise
+                # the traceback, then the same line and the same exit status as without --debug
+                click.echo(traceback.format_exc().rstrip("\n"), err=True)
             if isinstance(exc, OSError):  # a file system failure no check foresaw (permission, disk full)
                 where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
                 click.echo(f"ltmap: error: {where}{exc.strerror or exc}; check the path, its permissions and "
@@ -115,7 +117,7 @@ def _show_warning(fallback):
 
 @click.group("ltmap", cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="ltmap")
-@click.option("--debug", is_flag=True, help="Show the full traceback of an error.")
+@click.option("--debug", is_flag=True, help="Show the full traceback of an error (same exit status).")
 @click.pass_context
 def cli(ctx: click.Context, debug: bool) -> None:
     """ltmap: replay robot logs (ROS 1 bags, ROS 2 bags, MCAP) through a layered long-term

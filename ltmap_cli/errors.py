@@ -7,6 +7,30 @@ One class per package, as rosbags does.
 """
 
 
+from collections.abc import Iterable
+
+LIST_ITEMS = 10  # items an error line lists at most
+LIST_CHARS = 400  # characters a listed run of items takes at most
+
+
+def bounded(items: Iterable[object], limit: int = LIST_ITEMS, max_chars: int = LIST_CHARS, sep: str = ", ",
+            empty: str = "none") -> str:
+    """``items`` joined with ``sep`` for a one-line error, cut after ``limit`` items or
+    ``max_chars`` characters with "... N more" (a RealSense recording has ~70 topics)."""
+    items = [str(i) for i in items]
+    if not items:
+        return empty
+    shown: list[str] = []
+    size = 0
+    for item in items:
+        if len(shown) >= limit or (shown and size + len(sep) + len(item) > max_chars):
+            break
+        shown.append(item)
+        size += len(item) + (len(sep) if len(shown) > 1 else 0)
+    rest = len(items) - len(shown)
+    return sep.join(shown) + (f"{sep}... {rest} more" if rest else "")
+
+
 class LtmapError(Exception):
     """Base class of every error ltmap reports to a user (exit status 2)."""
 

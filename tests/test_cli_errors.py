@@ -95,7 +95,8 @@ def test_the_same_recording_in_two_formats_is_warned_about(tmp_path):
     conv = write_log(tmp_path / "a.mcap", "mcap-ros2", msgs)
     r = _invoke(["replay", bag, conv, "-o", tmp_path / "o1", "-q", "--no-plots"])
     assert r.exit_code == 0, r.output
-    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("ltmap: warning:")]
+    # (a 2 s log also gets the hint that its long-term map is nearly empty: analysis.hints)
+    warn = [ln for ln in r.stderr.splitlines() if ln.startswith("ltmap: warning:") and "st_rise_s" not in ln]
     n_tf = sum(1 for m in msgs if m.topic == "/tf")
     assert warn == [f"ltmap: warning: {n_tf} messages on /tf are in both {bag} and {conv} at the same log times: the "
                     f"same recording given twice (e.g. a .bag and its conversion)? Their frames were integrated "
@@ -106,4 +107,5 @@ def test_the_same_recording_in_two_formats_is_warned_about(tmp_path):
     tf_only = write_log(tmp_path / "t.mcap", "mcap-ros2", [m for m in msgs if m.topic != "/scan"])
     for pair, out in (((conv, later), "o2"), ((scans_only, tf_only), "o3")):
         r = _invoke(["replay", *pair, "-o", tmp_path / out, "-q", "--no-plots"])
-        assert r.exit_code == 0 and "warning" not in r.stderr, r.stderr
+        assert r.exit_code == 0, r.stderr
+        assert [ln for ln in r.stderr.splitlines() if "warning" in ln and "st_rise_s" not in ln] == [], r.stderr

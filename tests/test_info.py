@@ -123,21 +123,26 @@ def test_info_real_comprobo_bag():
     assert "warnings: none" in res.output
 
 
-def test_info_warns_on_a_scan_whose_ranges_do_not_match_its_angles(tmp_path):
-    """The check replay makes on every scan (replay exits 2 on this log) is made on the first scan."""
-    msgs = [tf(S, [("odom", "laser")]),
-            scan("/scan", S + 1, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1, angle_max=1.0),
-            scan("/laser2", S + 2, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1)]
+def test_info_and_replay_on_a_scan_whose_angle_max_disagrees_with_its_ranges(tmp_path):
+    """Replay places beam i at angle_min + i * angle_increment (as ROS does) and warns once with
+    the count; info says so on the first scan."""
+    msgs = [tf(S, [("odom", "laser")]), tf(S + 5 * S // 10, [("odom", "laser")])]
+    msgs += [scan("/scan", S + i * S // 10, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1, angle_max=1.0)
+             for i in range(1, 4)]
+    msgs += [scan("/laser2", S + 2, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1, frame_id="laser")]
+    msgs.sort(key=lambda m: m.log_time_ns)
     path = write_log(tmp_path / "bad.mcap", "mcap-ros2", msgs)
     res = _run(path)
     assert res.exit_code == 0, res.output
-    assert "warnings: none" not in res.output
-    warned = [ln for ln in res.output.splitlines() if "replay would stop on its first message" in ln]
+    warned = [ln for ln in res.output.splitlines() if "disagrees with its" in ln]
     assert len(warned) == 1, res.output  # /laser2 is consistent
-    assert warned[0].startswith(f"  - /scan: replay would stop on its first message: LaserScan on /scan, "
-                                f"message index 0 in {path}: 3 ranges do not match angle_min 0, angle_max 1, ")
+    assert warned[0].startswith("  - /scan: angle_max 1 disagrees with its 3 ranges from angle_min 0 by "
+                                "angle_increment 0.1 (last beam at 0.2); replay places beam i at angle_min")
     replay = CliRunner().invoke(cli, ["replay", str(path), "-o", str(tmp_path / "o"), "--no-plots", "-q"])
-    assert replay.exit_code == 2 and "3 ranges do not match" in replay.stderr
+    assert replay.exit_code == 0, replay.output
+    lines = [ln for ln in replay.stderr.splitlines() if "angle_max" in ln]
+    assert lines == ["ltmap: warning: 3 scans on /scan have an angle_max that disagrees with their ranges; "
+                     "their beams were placed at angle_min + i * angle_increment, as ROS does"]
 
 
 def test_info_fixed_frame_not_in_tf_fails_as_replay_does(tmp_path):
@@ -147,7 +152,8 @@ def test_info_fixed_frame_not_in_tf_fails_as_replay_does(tmp_path):
     replay = CliRunner().invoke(cli, ["replay", str(path), "--fixed-frame", "world", *mount,
                                       "-o", str(tmp_path / "o"), "--no-plots", "-q"])
     assert res.exit_code == 2 and replay.exit_code == 2
-    line = "ltmap: error: --fixed-frame world: no frame world in tf (frames: base_link, laser, odom); choose one of them"
+    line = ("ltmap: error: --fixed-frame world: no frame world in tf (frames: base_link, laser, odom) nor among the "
+            "sensors' frames (laser); choose one of them")
     assert res.stderr.splitlines() == [line] and replay.stderr.splitlines() == [line]
     assert "world" not in res.stdout.split("warnings:")[1]  # said once, as the error
     assert _run(path, "--fixed-frame", "odom", *mount).exit_code == 0
@@ -155,8 +161,10 @@ def test_info_fixed_frame_not_in_tf_fails_as_replay_does(tmp_path):
     other = write_log(tmp_path / "w.mcap", "mcap-ros2", [tf(S, [("world", "base_link")]), scan("/scan", S, [1.0])])
     res = _run(other)
     assert res.exit_code == 0
-    assert "  - tf has neither map nor odom (frames: base_link, world); choose the fixed frame with --fixed-frame" \
-        in res.output
+    assert ("  - tf has neither map nor odom (frames in tf: base_link, world): choose the fixed frame with "
+            "--fixed-frame laser (the sensor's own frame: a map with it standing still) or --fixed-frame world (the "
+            "root of tf; then give the sensor's mount with --tf), or give the transform from a fixed frame with "
+            "--tf odom:laser=x,y,z,roll,pitch,yaw\n") in res.output
 
 
 def test_info_tf_tree_counts_every_sample_of_the_log(tmp_path):

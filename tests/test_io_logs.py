@@ -192,12 +192,16 @@ def test_select_topics_by_type_names_and_reasons():
         select_topics({"/tf": ti["/tf"]}, source="x.bag")
 
 
-def test_laserscan_ranges_not_matching_angles(tmp_path):
+def test_laserscan_angles_come_from_the_increment_whatever_angle_max_says(tmp_path):
     bad = scan("/scan", 2 * S, [1.0] * 10, angle_min=0.0, angle_increment=0.1, angle_max=3.0)
     path = _log(tmp_path, "mcap-ros2", [scan("/scan", S, [1.0] * 10), bad])
-    with pytest.raises(LogReadError, match=r"LaserScan on /scan, message index 1 in .*log.mcap: 10 ranges do not "
-                                           r"match .*expected about 31"):
-        _all(path)
+    frames = [f for _, _, f in _all(path)]
+    assert [f.angle_max_off for f in frames] == [False, True]
+    np.testing.assert_allclose(frames[1].angles, 0.1 * np.arange(10))
+    broken = scan("/scan", S, [1.0] * 10, angle_min=0.0, angle_increment=0.0, angle_max=0.0)
+    with pytest.raises(LogReadError, match=r"LaserScan on /scan, message index 0 in .*broken.mcap: angle_min 0 and "
+                                           r"angle_increment 0 cannot place its 10 beams"):
+        _all(_log(tmp_path, "mcap-ros2", [broken], name="broken"))
 
 
 def test_missing_empty_and_not_a_log(tmp_path):

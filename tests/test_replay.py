@@ -453,10 +453,12 @@ def test_a_sensor_topic_left_out_is_said_on_the_console(tmp_path):
     log = write_log(tmp_path / "l.mcap", "mcap-ros2", msgs)
     r = run(["replay", str(log), "-o", str(tmp_path / "o"), "-q"])
     assert r.exit_code == 0, r.output
-    warn = [ln for ln in r.output.splitlines() if ln.startswith("ltmap: warning:")]
+    # (a 2 s log also gets the hint that its long-term map is nearly empty: analysis.hints)
+    warn = [ln for ln in r.output.splitlines() if ln.startswith("ltmap: warning:") and "st_rise_s" not in ln]
     assert len(warn) == 1 and "/cam/depth/image_raw not used: depth Image without CameraInfo" in warn[0]
     r = run(["replay", str(log), "-o", str(tmp_path / "o2"), "-q", "--scan-topic", "/scan"])
-    assert r.exit_code == 0 and "ltmap: warning:" not in r.output  # left out on purpose
+    assert r.exit_code == 0
+    assert [ln for ln in r.output.splitlines() if "warning" in ln and "st_rise_s" not in ln] == []  # on purpose
 
 
 def test_raw_and_negated_maps_read_back_as_the_trinary_one(tmp_path):
@@ -495,15 +497,11 @@ def test_depth_without_camera_info(tmp_path):
     assert_one_line_error(run(["replay", str(log), "-o", str(tmp_path / "o")]), "CameraInfo")
 
 
-def test_scan_whose_ranges_do_not_match_its_angles(tmp_path):
-    bad = scan("/scan", T0, [1.0, 1.0, 1.0], angle_min=0.0, angle_increment=0.1, angle_max=1.0)
-    log = write_log(tmp_path / "bad.mcap", "mcap-ros2", [tf(T0, [("odom", "laser")]), bad])
-    assert_one_line_error(run(["replay", str(log), "-o", str(tmp_path / "o")]), "/scan")
-
-
-def test_debug_shows_the_traceback(tmp_path):
+def test_debug_shows_the_traceback_with_the_same_status(tmp_path):
     r = CliRunner().invoke(cli, ["--debug", "replay", str(tmp_path / "nope.mcap")])
-    assert r.exit_code != 0 and r.exception is not None
+    assert r.exit_code == 2
+    assert "Traceback (most recent call last)" in r.stderr
+    assert r.stderr.rstrip().splitlines()[-1].startswith("ltmap: error: log not found:")
 
 
 def test_dump_config_and_config_file_round_trip(tmp_path):

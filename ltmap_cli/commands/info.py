@@ -16,6 +16,28 @@ from pathlib import Path
 
 import click
 
+NS = 1_000_000_000
+OFFSET_SHOWN_S = 1.0  # header stamps this far from record time (either way) are shown
+
+
+def _offset_text(ns: int | float) -> str:
+    """A time difference (ns) as ``33194330 s (384.2 days)`` / ``2.50 s``, without sign."""
+    s_ = abs(ns) / NS
+    text = f"{s_:.0f} s" if s_ >= 100 else f"{s_:.2f} s"
+    return text + (f" ({s_ / 86400:.1f} days)" if s_ >= 86400 else "")
+
+
+def stamp_offset_lines(offsets_s: dict[str, float]) -> list[str]:
+    """``header stamps are X s before record time`` per topic whose first header stamp is at
+    least OFFSET_SHOWN_S from its record time (a bag re-recorded from playback, sim time, an
+    unsynced clock)."""
+    out = []
+    for topic, off in sorted(offsets_s.items()):
+        if abs(off) >= OFFSET_SHOWN_S:
+            side = "before" if off > 0 else "after"
+            out.append(f"{topic}: header stamps are {_offset_text(off * NS)} {side} record time")
+    return out
+
 
 def _rate(count: int, first: int | None, last: int | None) -> str:
     if count < 2 or first is None or last is None or last <= first:
@@ -43,12 +65,16 @@ def gather(
     tf_mounts=(),
     fixed_frame: str = "",
     allow_truncated: bool = False,
+    base_frame: str | None = None,
 ) -> dict:
-    """Everything `info` shows, as a dict (also used by tests). Raises like the readers."""
+    """Everything `info` shows, as a dict (also used by tests and ``--json``). Raises like the
+    readers. ``base_frame``: ``map.robot.base_frame`` (default: its default)."""
+    from ..config import ReplayConfig
+    from ..core.config import MapConfig
     from ..errors import LogReadError, TransformError
     from ..io import decode as dec
     from ..io.logs import IMAGE, TruncatedLogError, open_logs
-    from ..io.transforms import TfBuffer
+    from ..io.transforms import TfBuffer, choose_base_frame, choose_fixed_frame
 
     with open_logs(paths, allow_truncated=True) as logs:
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
@@ -60,6 +86,7 @@ def gather(
         last: dict[str, int] = {}
         sensor_first: dict[str, object] = {}
         sensor_where: dict[str, str] = {}
+        offset: dict[str, int] = {}  # topic -> record time - header stamp of its first stamped message (ns)
         warnings: list[str] = []
         static = set(sel.static_tf)
         sensors = set(sel.sensor_topics) | set(sel.skipped)
@@ -69,7 +96,17 @@ def gather(
         # when they can be (the generic deserializers cost ~0.15 ms a message plus building the
         # rosbags type store); anything unusual goes through the generic deserializer
         parsers = {name: dec.CDR_PARSERS.get(t.msgtype) for name, t in logs.topics.items()}
+        # replay chooses the fixed frame when its first sensor frame is released (tf_wait after
+        # it, in log time), from the tf it has by then: the frames at that point, as replay sees them
+        used_sensors = set(sel.sensor_topics)
+        wait_ns = int(ReplayConfig().tf_wait * NS)
+        release_ns: int | None = None
+        early: set[str] | None = None
         for topic, t, decode, where in logs.raw(logs.topics):
+            if release_ns is None and topic in used_sensors:
+                release_ns = t + wait_ns
+            if early is None and release_ns is not None and t > release_ns:
+                early = buf.frames
             counts[topic] = counts.get(topic, 0) + 1
             first.setdefault(topic, t)
             last[topic] = t
@@ -82,22 +119,39 @@ def gather(
                         sensor_first[topic] = None
                     continue
                 if topic in tf_topics:
-                    for s in dec.decode_tf(msg, static=topic in static):
+                    samples = dec.decode_tf(msg, static=topic in static)
+                    for s in samples:
                         buf.add(s)
+                    if samples and topic not in static and topic not in offset:
+                        offset[topic] = t - samples[0].stamp_ns
                 elif topic in odom_topics:
-                    buf.add(dec.decode_odometry(msg))
+                    o = dec.decode_odometry(msg)
+                    buf.add(o)
+                    offset.setdefault(topic, t - o.stamp_ns)
                 else:
                     sensor_first[topic] = msg
                     sensor_where[topic] = where
+                    offset.setdefault(topic, t - dec.stamp_ns(msg.header.stamp))
         stopped = logs.stats.stopped_at
         topics = logs.topics
         names = [str(p) for p in paths]
         formats = logs.formats
 
     frames = buf.frames
+    if early is None:
+        early = frames
     error = None
+    sensor_frames = {dec.frame_name(m.header.frame_id) for t, m in sensor_first.items()
+                     if m is not None and t in sel.sensor_topics} - {""}  # fmt: skip
     try:
-        fixed = buf.fixed_frame(fixed_frame)
+        fixed = buf.fixed_frame(fixed_frame, sensor_frames)
+        if not fixed_frame:  # replay's own choice: from the frames it has at its first sensor frame
+            roots = {f: (buf.root(f) if f in frames else f) for f in sensor_frames}
+            fixed = choose_fixed_frame(early, "", sensor_frames, roots, [f for f in early if f not in buf.edges])
+            if "map" in frames and fixed != "map":
+                warnings.append("tf has map only after the first sensor frames (a localizer that starts later?): "
+                                f"replay maps in {fixed}; with --fixed-frame map it maps in map, skipping the "
+                                "frames before map -> odom exists")
     except TransformError as err:
         fixed = None
         if fixed_frame:  # a frame asked for and not in tf: replay stops on it, so does info
@@ -114,12 +168,23 @@ def gather(
                     warnings.append(f"{topic}: no messages could be read")
                 continue
             frame = dec.frame_name(msg.header.frame_id)
-            used[topic] = f"{kind}, frame {frame}"
+            used[topic] = f"{kind}, frame {frame or '(empty header.frame_id)'}"
+            if not frame:
+                warnings.append(f"{topic}: its first message has an empty header.frame_id: replay skips such "
+                                f"messages (nothing tells where the sensor was)")
             if kind == "laser":
                 try:  # the check replay makes on every scan
-                    dec.decode_scan(msg, topic, sensor_where[topic])
+                    sf = dec.decode_scan(msg, topic, sensor_where[topic])
                 except LogReadError as err:
                     warnings.append(f"{topic}: replay would stop on its first message: {err}")
+                else:
+                    if sf.angle_max_off:
+                        n = len(sf.ranges)
+                        warnings.append(
+                            f"{topic}: angle_max {float(msg.angle_max):.6g} disagrees with its {n} ranges from "
+                            f"angle_min {sf.angle_min:.6g} by angle_increment {sf.angle_increment:.6g} (last beam "
+                            f"at {sf.angle_min + (n - 1) * sf.angle_increment:.6g}); replay places beam i at "
+                            f"angle_min + i * angle_increment, as ROS does, and counts such scans")
             if kind == "depth":
                 used[topic] += f" (CameraInfo {sel.depths[topic]})"
                 enc = str(getattr(msg, "encoding", ""))
@@ -128,7 +193,7 @@ def gather(
                         f"{topic}: encoding {enc!r} is not a depth encoding (16UC1, 32FC1); replay "
                         f"would stop on it: leave it out with --depth-topic naming others"
                     )
-            if fixed is not None:
+            if fixed is not None and frame:
                 problem = buf.connection_problem(fixed, frame)
                 if problem:
                     warnings.append(f"{topic}: every frame would be skipped: {problem}")
@@ -147,6 +212,22 @@ def gather(
             f"{n} samples of {edge} ignored: the edge also comes from a stronger source "
             f"(--tf mount, then /tf and /tf_static, then odometry)"
         )
+    for what, n in buf.unnamed.items():
+        if what.startswith("nav_msgs/Odometry") and what.endswith("(empty child_frame_id)"):
+            todo = ("it does not say which frame it moves, so ltmap cannot use it: publish the robot's "
+                    "pose in /tf, or map in a sensor's own frame with --fixed-frame "
+                    f"{min(sensor_frames) if sensor_frames else '<frame>'}")
+        else:
+            todo = "tf refuses an empty frame name: fix the recording, or give the transform with --tf"
+        warnings.append(f"{n} samples {what} not used: {todo}")
+    tf_offsets = {k: v for k, v in offset.items() if k in tf_topics or k in odom_topics}
+    for topic in sel.sensor_topics:
+        if topic not in offset or not tf_offsets:
+            continue
+        ref, ref_off = min(tf_offsets.items(), key=lambda kv: abs(kv[1] - offset[topic]))
+        if abs(ref_off - offset[topic]) > 10 * NS:
+            warnings.append(f"{topic}: its header stamps and those of {ref} are {_offset_text(offset[topic] - ref_off)} "
+                            f"apart (relative to record time): its frames cannot be placed with that tf")
     if stopped:
         warnings.append(f"log is truncated or corrupt: {stopped}")
     starts = [v for v in first.values()]
@@ -168,6 +249,9 @@ def gather(
         "frames": sorted(frames),
         "tree": buf.tree_text(),
         "fixed_frame": fixed,
+        "base_frame": choose_base_frame(frames, base_frame or MapConfig().robot.base_frame),
+        "sensor_frames": sorted(sensor_frames),
+        "stamp_offset_s": {k: v / NS for k, v in sorted(offset.items())},
         "used": used,
         "tf_topics": sel.tf,
         "odometry_topics": sel.odometry,
@@ -222,6 +306,13 @@ def render(r: dict) -> str:
     if r["tree"]:
         lines.extend("  " + ln for ln in r["tree"].splitlines())
     lines.append(f"fixed frame: {r['fixed_frame'] or '- (none)'}")
+    lines.append(f"base frame:  {r['base_frame']}" + ("" if r["base_frame"] in r["frames"] else
+                                                      " (not in tf: the robot's footprint is not placed)"))
+    shifted = stamp_offset_lines(r.get("stamp_offset_s") or {})
+    if shifted:
+        lines.append("")
+        lines.append("header stamps against record time:")
+        lines.extend("  " + ln for ln in shifted)
     lines.append("")
     if r["warnings"]:
         lines.append("warnings:")
@@ -251,12 +342,20 @@ def render(r: dict) -> str:
 )
 @click.option("--fixed-frame", default="", help="Fixed frame (default: map if tf has it, else odom).")
 @click.option("--allow-truncated", is_flag=True, help="Exit 0 on a truncated or corrupt log.")
+@click.option("--json", "as_json", is_flag=True, help="Print what info found as JSON (the same claims).")
 def info(
-    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated
+    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated,
+    as_json,
 ) -> None:
     """Show what LOG(s) hold: topics, types, counts, duration, rates, the tf tree, which topics
-    `ltmap replay` would use, and warnings for what it would skip and why."""
+    `ltmap replay` would use, the fixed and base frames it would use, and warnings for what it
+    would skip and why."""
     r = gather(list(logs), scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated)
-    click.echo(render(r))
+    if as_json:
+        import json
+
+        click.echo(json.dumps({k: (str(v) if k == "error" else v) for k, v in r.items()}, indent=2))
+    else:
+        click.echo(render(r))
     if "error" in r:
         raise r["error"]

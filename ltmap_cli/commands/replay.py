@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from ..analysis.hints import replay_hints
 from ..errors import ConfigError
 
 
@@ -171,6 +172,8 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     for topic, why in sorted((report.get("topics_not_used") or {}).items()):
         if "not chosen" not in why:  # topics the user left out on purpose need no word
             click.echo(f"ltmap: warning: {topic} not used: {why}", err=True)
+    for hint in replay_hints(report, st_rise_s=cfg.map.layers.st_rise_s, resolution=cfg.map.resolution):
+        click.echo(f"ltmap: warning: {hint}", err=True)
     plan = (report.get("events") or {}).get("plan") or {}
     if plan.get("warning"):
         click.echo(f"ltmap: warning: {plan['warning']}", err=True)

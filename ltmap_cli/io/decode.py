@@ -10,6 +10,7 @@ Everything is vectorized with numpy; there is no Python loop per point, beam or 
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass
 from typing import Any
@@ -18,14 +19,16 @@ import numpy as np
 
 from ..errors import LogReadError
 from .frames import CameraIntrinsics, CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
+from .transforms import norm
 
 # sensor_msgs/PointField datatypes
 _POINTFIELD = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 8: "f8"}
 
 
-def frame_name(name: str) -> str:
-    """tf frame ids without a leading slash: ``/laser`` and ``laser`` are one frame."""
-    return name.lstrip("/")
+def frame_name(name: Any) -> str:
+    """A header's frame id as tf knows it (``transforms.norm``: no leading ``/``, no whitespace):
+    ``/laser``, ``laser`` and `` laser `` are one frame."""
+    return norm(str(name))
 
 
 def stamp_ns(t: Any) -> int:
@@ -52,22 +55,30 @@ def _bytes(data: Any) -> np.ndarray:
     return np.asarray(data, dtype=np.uint8)
 
 
+def scan_angle_max_off(n: int, amin: float, amax: float, inc: float) -> bool:
+    """Whether a LaserScan's ``angle_max`` disagrees with its ``n`` ranges (more than one beam
+    off: drivers differ on whether ``angle_max`` is the last beam's angle). Harmless: the angles
+    are ``angle_min + i * angle_increment``, as ROS' own projection computes them."""
+    if n < 2 or not math.isfinite(amax):
+        return n >= 2
+    return abs(n - ((amax - amin) / inc + 1.0)) > 1.01
+
+
 def decode_scan(msg: Any, topic: str, where: str) -> ScanFrame:
+    """A ScanFrame whose beam i is at ``angle_min + i * angle_increment`` whatever ``angle_max``
+    says (``angle_max_off`` tells when it disagrees); an increment that is zero or not finite
+    (with more than one range) cannot place the beams: LogReadError."""
     ranges = np.asarray(msg.ranges, dtype=np.float32).reshape(-1)
     amin, amax, inc = float(msg.angle_min), float(msg.angle_max), float(msg.angle_increment)
     n = len(ranges)
-    if n > 1:
-        expected = (amax - amin) / inc + 1.0 if inc != 0.0 and np.isfinite(inc) else float("nan")
-        # drivers disagree on whether angle_max is the last beam's angle: allow one beam either way
-        if not np.isfinite(expected) or abs(n - expected) > 1.01:
-            raise LogReadError(
-                f"LaserScan {where}: {n} ranges do not match angle_min {amin:.6g}, angle_max {amax:.6g}, "
-                f"angle_increment {inc:.6g} (expected about {expected:.1f}); the log is corrupt, "
-                f"skip this topic with --scan-topic naming another")
+    if not math.isfinite(amin) or (n > 1 and (inc == 0.0 or not math.isfinite(inc))):
+        raise LogReadError(
+            f"LaserScan {where}: angle_min {amin:.6g} and angle_increment {inc:.6g} cannot place its {n} "
+            f"beams; the log is corrupt, skip this topic with --scan-topic naming another")
     h = msg.header
     return ScanFrame(stamp_ns=stamp_ns(h.stamp), frame_id=frame_name(h.frame_id), angle_min=amin,
                      angle_increment=inc, range_min=float(msg.range_min), range_max=float(msg.range_max),
-                     ranges=ranges, topic=topic)
+                     ranges=ranges, topic=topic, angle_max_off=scan_angle_max_off(n, amin, amax, inc))
 
 
 def cloud_points(msg: Any, where: str) -> np.ndarray:
@@ -121,13 +132,18 @@ def intrinsics(info: Any) -> CameraIntrinsics:
                             cx=float(k[2]), cy=float(k[5]))
 
 
-def depth_metres(msg: Any, where: str) -> np.ndarray:
-    """An Image 16UC1 (mm, 0 invalid) or 32FC1 (m, NaN/0 invalid) as float32 metres, NaN invalid."""
+MM = 0.001  # metres per unit of a 16-bit depth image (16UC1 / mono16) unless the log says otherwise
+
+
+def depth_metres(msg: Any, where: str, units: float | None = None) -> np.ndarray:
+    """An Image 16UC1 / mono16 (``units`` metres per unit, default mm; 0 invalid) or 32FC1 (m,
+    NaN/0 invalid) as float32 metres, NaN invalid."""
     enc = str(msg.encoding)
     code = {"16UC1": "u2", "mono16": "u2", "32FC1": "f4"}.get(enc)
     if code is None:
         raise LogReadError(f"depth Image {where} has encoding {enc!r}; supported depth encodings are "
-                           f"16UC1 (millimetres) and 32FC1 (metres): choose the depth topic with --depth-topic")
+                           f"16UC1 / mono16 (millimetres) and 32FC1 (metres): choose the depth topic with "
+                           f"--depth-topic")
     h, w, step = int(msg.height), int(msg.width), int(msg.step)
     dt = np.dtype((">" if msg.is_bigendian else "<") + code)
     data = _bytes(msg.data)
@@ -138,7 +154,7 @@ def depth_metres(msg: Any, where: str) -> np.ndarray:
         return np.zeros((h, w), np.float32)
     raw = np.ndarray((h, w), dtype=dt, buffer=data, strides=(step, dt.itemsize))
     if code == "u2":
-        depth = raw.astype(np.float32) * np.float32(0.001)
+        depth = raw.astype(np.float32) * np.float32(units or MM)
         depth[raw == 0] = np.nan
     else:
         depth = raw.astype(np.float32)
@@ -160,8 +176,9 @@ def _checked_intrinsics(info: Any, shape: tuple[int, int], where: str) -> Camera
     return intr
 
 
-def decode_depth(msg: Any, info: Any, topic: str, where: str) -> DepthFrame:
-    depth = depth_metres(msg, where)
+def decode_depth(msg: Any, info: Any, topic: str, where: str, units: float | None = None) -> DepthFrame:
+    """A DepthFrame; ``units``: metres per unit of a 16-bit image (a RealSense ``Depth Units``)."""
+    depth = depth_metres(msg, where, units)
     intr = _checked_intrinsics(info, depth.shape, where)
     h0 = msg.header
     return DepthFrame(stamp_ns=stamp_ns(h0.stamp), frame_id=frame_name(h0.frame_id), depth_m=depth,
@@ -353,12 +370,13 @@ class RawDepthFrame:
     raw: np.ndarray
     intrinsics: CameraIntrinsics
     topic: str = ""
+    log: int = 0  # index of the log it comes from
 
     @property
     def depth_m(self) -> np.ndarray:
         raw = self.raw
         if raw.dtype == np.uint16:
-            depth = raw.astype(np.float32) * np.float32(0.001)
+            depth = raw.astype(np.float32) * np.float32(MM)
             depth[raw == 0] = np.nan
         else:
             depth = raw.astype(np.float32)
@@ -384,9 +402,12 @@ def depth_raw(msg: Any, where: str) -> np.ndarray:
     return raw if dt.isnative else raw.astype(dt.newbyteorder("="))
 
 
-def decode_depth_raw(msg: Any, info: Any, topic: str, where: str) -> RawDepthFrame:
-    """As ``decode_depth``, keeping the raw pixels (a ``RawDepthFrame``)."""
+def decode_depth_raw(msg: Any, info: Any, topic: str, where: str, units: float | None = None) -> RawDepthFrame:
+    """As ``decode_depth``, keeping the raw pixels (a ``RawDepthFrame``); 16-bit pixels in
+    ``units`` other than millimetres become float32 metres."""
     raw = depth_raw(msg, where)
+    if units is not None and units != MM and raw.dtype == np.uint16:
+        raw = raw.astype(np.float32) * np.float32(units)
     intr = _checked_intrinsics(info, raw.shape, where)
     h0 = msg.header
     return RawDepthFrame(stamp_ns=stamp_ns(h0.stamp), frame_id=frame_name(h0.frame_id), raw=raw, intrinsics=intr,

@@ -23,6 +23,8 @@ class ScanFrame:
     range_max: float
     ranges: np.ndarray  # float32 (N,), raw values: NaN / inf kept as recorded
     topic: str = ""
+    angle_max_off: bool = False  # the message's angle_max disagrees with its ranges (angles ignore it)
+    log: int = 0  # index of the log it comes from, when several are replayed as one stream
 
     @property
     def angles(self) -> np.ndarray:
@@ -48,6 +50,7 @@ class DepthFrame:
     depth_m: np.ndarray  # float32 (H, W); invalid pixels are NaN
     intrinsics: CameraIntrinsics
     topic: str = ""
+    log: int = 0  # index of the log it comes from
 
 
 @dataclass(frozen=True)
@@ -58,6 +61,7 @@ class CloudFrame:
     frame_id: str
     points: np.ndarray  # float32 (N, 3)
     topic: str = ""
+    log: int = 0  # index of the log it comes from
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,11 @@ cannot be deserialized (damaged inside an intact log: a garbage row in a .db3, f
 .bag) is skipped and counted in ``skipped`` as ``cannot decode the message on <topic>``; the first
 one per topic is reported as an ``LtmapWarning`` naming its message index (0-based, per topic and
 file) and file, and the stream goes on. A message type the log has no definition or decoder for,
-or a LaserScan whose ranges do not match its angles, raises ``LogReadError`` naming the topic,
-message index and file.
+or a LaserScan whose increment cannot place its beams, raises ``LogReadError`` naming the topic,
+message index and file (a LaserScan's ``angle_max`` is not needed: ``ScanFrame.angle_max_off``
+tells when it disagrees). RealSense SDK bags: a depth image on ``.../<Stream>/image/data`` is
+paired with ``.../<Stream>/info/camera_info`` and scaled by the sensor's ``Depth Units`` option
+(``io.realsense``). Sensor frames carry ``log``: the index in ``paths`` of the log they come from.
 """
 
 from __future__ import annotations
@@ -51,12 +54,13 @@ import heapq
 import warnings
 from collections import Counter
 from collections.abc import Iterable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError, LogReadError, LtmapWarning
+from ..errors import InputError, LogReadError, LtmapWarning, bounded
 from . import decode as dec
+from . import realsense
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
 from .sources import Source, TopicInfo, normalize_type, open_source
 
@@ -90,6 +94,7 @@ class TopicSelection:
     scans: list[str] = field(default_factory=list)
     clouds: list[str] = field(default_factory=list)
     depths: dict[str, str] = field(default_factory=dict)  # depth image topic -> its CameraInfo topic
+    depth_units: dict[str, str] = field(default_factory=dict)  # depth image topic -> its Depth Units topic
     tf: list[str] = field(default_factory=list)
     static_tf: list[str] = field(default_factory=list)  # subset of tf
     odometry: list[str] = field(default_factory=list)
@@ -102,19 +107,20 @@ class TopicSelection:
     @property
     def topics(self) -> set[str]:
         """Every topic to read (sensors, their CameraInfo, tf and odometry)."""
-        return {*self.sensor_topics, *self.depths.values(), *self.tf, *self.odometry}
+        return {*self.sensor_topics, *self.depths.values(), *self.depth_units.values(), *self.tf, *self.odometry}
 
 
-def _listing(topics: Mapping[str, TopicInfo], limit: int = 25) -> str:
-    items = [f"{t.name} ({t.msgtype})" for t in sorted(topics.values(), key=lambda t: t.name)]
-    more = f", ... {len(items) - limit} more" if len(items) > limit else ""
-    return ", ".join(items[:limit]) + more if items else "none"
+def _listing(topics: Mapping[str, TopicInfo]) -> str:
+    return bounded(f"{t.name} ({t.msgtype})" for t in sorted(topics.values(), key=lambda t: t.name))
 
 
 def _camera_info_for(image_topic: str, topics: Mapping[str, TopicInfo]) -> str | None:
     sibling = image_topic.rsplit("/", 1)[0] + "/camera_info"
     if sibling in topics and topics[sibling].msgtype == CAMERA_INFO:
         return sibling
+    rs = realsense.camera_info_topic(image_topic, topics)
+    if rs is not None:
+        return rs
     infos = [t.name for t in topics.values() if t.msgtype == CAMERA_INFO]
     return infos[0] if len(infos) == 1 else None
 
@@ -146,11 +152,11 @@ def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_to
             if key is None:
                 raise InputError(
                     f"{option[msgtype]} {name}: {source} has no topic {name}; its {label[msgtype]} topics: "
-                    f"{', '.join(sorted(of_type)) or 'none'}; all topics: {_listing(topics)}")
+                    f"{bounded(sorted(of_type))}; all topics: {_listing(topics)}")
             if topics[key].msgtype != msgtype:
                 raise InputError(
                     f"{option[msgtype]} {name}: topic {key} in {source} is {topics[key].msgtype}, not "
-                    f"{label[msgtype]}; its {label[msgtype]} topics: {', '.join(sorted(of_type)) or 'none'}")
+                    f"{label[msgtype]}; its {label[msgtype]} topics: {bounded(sorted(of_type))}")
             if key not in chosen[msgtype]:
                 chosen[msgtype].append(key)
 
@@ -169,22 +175,25 @@ def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_to
         else:
             if not picked and "depth" not in t.name.lower():
                 sel.skipped[t.name] = ("Image whose name does not say depth (a colour camera?); "
-                                       "if it is 16UC1/32FC1 depth, choose it with --depth-topic")
+                                       "if it is 16UC1/mono16/32FC1 depth, choose it with --depth-topic")
                 continue
             info = _camera_info_for(t.name, topics)
             if info is None:
-                why = (f"depth Image without CameraInfo: no {t.name.rsplit('/', 1)[0]}/camera_info and not "
-                       f"exactly one CameraInfo topic in {source}")
+                why = (f"depth Image without CameraInfo: no {t.name.rsplit('/', 1)[0]}/camera_info (nor a RealSense "
+                       f".../info/camera_info) and not exactly one CameraInfo topic in {source}")
                 if picked:
                     raise InputError(f"--depth-topic {t.name}: {why}; a depth image cannot be placed "
                                      f"without its camera intrinsics")
                 sel.skipped[t.name] = why
                 continue
             sel.depths[t.name] = info
+            units = realsense.depth_units_topic(t.name, topics)
+            if units is not None:
+                sel.depth_units[t.name] = units
 
     if require_sensor and not sel.sensor_topics:
         raise InputError(f"no usable LaserScan, PointCloud2 or depth Image topic in {source}; its topics: "
-                         f"{_listing(topics)}" + (f"; skipped: {', '.join(f'{k}: {v}' for k, v in sel.skipped.items())}"
+                         f"{_listing(topics)}" + (f"; skipped: {bounded(f'{k}: {v}' for k, v in sel.skipped.items())}"
                                                   if sel.skipped else ""))
     return sel
 
@@ -195,9 +204,12 @@ _SHARED_TOPICS = {"/tf_static", "/rosout", "/rosout_agg", "/parameter_events", "
 class LogSet:
     """One or several open logs; use as a context manager or call ``close()``."""
 
-    def __init__(self, paths: Sequence[Path], sources: list[Source], allow_truncated: bool):
+    def __init__(self, paths: Sequence[Path], sources: list[Source], allow_truncated: bool,
+                 source_log: Sequence[int] | None = None):
         self.paths = list(paths)
         self.sources = sources
+        # per source, the index in ``paths`` of the log it belongs to (a ROS 2 bag may be several files)
+        self.source_log = list(source_log) if source_log is not None else list(range(len(sources)))
         self.allow_truncated = allow_truncated
         self.stats = ReadStats()
         self.skipped: Counter[str] = Counter()
@@ -244,6 +256,11 @@ class LogSet:
         """``(topic, log_time_ns, decode, where)`` for ``topics`` in log-time order, undecoded:
         ``decode()`` returns the deserialized message. Cheap: use it to count. Truncation is
         handled as in ``messages``."""
+        for topic, t, decode, where, _ in self._raw(topics):
+            yield topic, t, decode, where
+
+    def _raw(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any, str, int]]:
+        """``raw`` with the index (in ``paths``) of the log each message comes from."""
         wanted = set(topics)
         streams = [self._tagged(src, wanted, k) for k, src in enumerate(self.sources)]
         last: dict[str, tuple[int, int]] = {}  # topic -> (log time, source) of its last message
@@ -257,7 +274,7 @@ class LogSet:
                 if prev is not None and prev[0] == t and prev[1] != k and topic not in _SHARED_TOPICS:
                     twice[(topic, prev[1], k)] += 1
                 last[topic] = (t, k)
-            yield topic, t, decode, where
+            yield topic, t, decode, where, self.source_log[k]
         if twice:
             (topic, a, b), count = twice.most_common(1)[0]
             pa, pb = self.sources[a].path, self.sources[b].path
@@ -307,6 +324,9 @@ class LogSet:
             infos_wanted.setdefault(info, []).append(image)
         for info in infos_wanted:
             kinds.setdefault(info, "info")
+        for units_topic in sel.depth_units.values():
+            kinds.setdefault(units_topic, "units")
+        units: dict[str, float] = {}  # Depth Units topic -> metres per unit (RealSense SDK bags)
         parsers = {t: dec.CDR_PARSERS.get(self.topics[t].msgtype) if fast and t in self.topics else None
                    for t in kinds}
         min_gap = int(0.9e9 / depth_max_rate) if depth_max_rate > 0 else 0
@@ -314,11 +334,16 @@ class LogSet:
         static = set(sel.static_tf)
         latest_info: dict[str, Any] = {}  # topic -> (decode, where, parser) of its newest message
         good_info: dict[str, Any] = {}  # topic -> its newest message that could be decoded
-        for topic, t, decode, where in self.raw(kinds):
+        for topic, t, decode, where, log in self._raw(kinds):
             kind = kinds[topic]
             parser = parsers[topic] if getattr(decode, "encoding", "") == "cdr" else None
             if kind == "info":
                 latest_info[topic] = (decode, where, parser)
+                continue
+            if kind == "units":
+                value = realsense.depth_units(self._decode_or_skip(topic, decode, where, None))
+                if value is not None:
+                    units[topic] = value
                 continue
             if kind == "depth":
                 info_topic = sel.depths[topic]
@@ -355,18 +380,22 @@ class LogSet:
                 if msg is None:
                     continue
                 info = good_info[info_topic]
+                scale = units.get(sel.depth_units.get(topic, ""))
                 if fast:
-                    yield topic, t, dec.decode_depth_raw(msg, info, topic, where)
+                    frame = dec.decode_depth_raw(msg, info, topic, where, units=scale)
                 else:
-                    yield topic, t, dec.decode_depth(msg, info, topic, where)
+                    frame = dec.decode_depth(msg, info, topic, where, units=scale)
+                yield topic, t, frame if not log else replace(frame, log=log)
                 continue
             msg = self._decode_or_skip(topic, decode, where, parser)
             if msg is None:
                 continue
             if kind == "scan":
-                yield topic, t, dec.decode_scan(msg, topic, where)
+                frame = dec.decode_scan(msg, topic, where)
+                yield topic, t, frame if not log else replace(frame, log=log)
             elif kind == "cloud":
-                yield topic, t, dec.decode_cloud(msg, topic, where)
+                frame = dec.decode_cloud(msg, topic, where)
+                yield topic, t, frame if not log else replace(frame, log=log)
             elif kind == "tf":
                 for s in dec.decode_tf(msg, static=topic in static):
                     yield topic, t, s
@@ -423,11 +452,13 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     if not paths:
         raise InputError("no log given; give a ROS 1 .bag, a ROS 2 bag folder or an .mcap file")
     sources: list[Source] = []
+    source_log: list[int] = []
     given: dict[Path, Path] = {}  # resolved file of each source -> the path given for it
     try:
-        for p in paths:
+        for i, p in enumerate(paths):
             opened = open_source(p)
             sources.extend(opened)
+            source_log.extend([i] * len(opened))
             for src in opened:
                 real = Path(src.path).resolve()
                 if real in given:
@@ -439,4 +470,4 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
         for s in sources:
             s.close()
         raise
-    return LogSet(paths, sources, allow_truncated)
+    return LogSet(paths, sources, allow_truncated, source_log)

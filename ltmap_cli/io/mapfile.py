@@ -51,12 +51,13 @@ from __future__ import annotations
 import json
 import math
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ltmap_cli.errors import ConfigError, MapFileError
+from ltmap_cli.errors import ConfigError, LtmapWarning, MapFileError
 from ltmap_cli.io.atomic import atomic_path, write_bytes_atomic, write_text_atomic
 
 UNKNOWN = -1
@@ -282,9 +283,15 @@ def cells_from_image(
     return cells
 
 
-def read_map_yaml(path: str | Path) -> GridMap:
+def read_map_yaml(path: str | Path, saver_unknown: bool = False) -> GridMap:
     """Read a map_server YAML and its image with nav2 map_io semantics (modes trinary, scale,
-    raw; negate; occupied_thresh / free_thresh). Raises MapFileError with a one-line message."""
+    raw; negate; occupied_thresh / free_thresh). Raises MapFileError with a one-line message.
+
+    ``saver_unknown``: in trinary mode, pixels of map_saver's unknown grey (205; 50 negated) are
+    unknown whatever the thresholds say. nav2's map_saver wrote ``free_thresh: 0.25`` until 2025
+    (navigation2 #5278), under which nav2 reads its own unknown grey (occ 0.196) as free; the
+    pixel values of a trinary image are constants, so the thresholds cannot mean that. The cells
+    this changes are reported as one ``LtmapWarning``."""
     path = Path(path)
     doc = _load_yaml(path)
     for key in REQUIRED_KEYS:
@@ -348,6 +355,19 @@ def read_map_yaml(path: str | Path) -> GridMap:
 
     colour, alpha = _read_image(image_path)
     cells = cells_from_image(colour, alpha, mode, negate, occupied_thresh, free_thresh)
+    if saver_unknown and mode == "trinary":
+        grey = 255 - PIXEL_UNKNOWN if negate else PIXEL_UNKNOWN
+        mask = (colour == grey * 257).all(axis=2) & (cells != UNKNOWN)  # levels are Q16 quanta
+        if alpha is not None:
+            mask &= alpha == QUANTUM_MAX
+        if mask.any():
+            was = "free" if (cells[mask] == FREE).all() else "known"
+            warnings.warn(LtmapWarning(
+                f"{path}: {int(mask.sum())} cells of map_saver's unknown grey {grey} are kept unknown although "
+                f"free_thresh {free_thresh:g} / occupied_thresh {occupied_thresh:g} make them {was} in nav2 "
+                f"(map_saver wrote free_thresh 0.25 until 2025; free_thresh 0.196 in the YAML says what it meant)"),
+                stacklevel=2)  # fmt: skip
+            cells[mask] = UNKNOWN
     data = np.ascontiguousarray(cells[::-1])  # image row 0 is the top of the map
     return GridMap(data=data, resolution=resolution, origin=tuple(origin_values))
 

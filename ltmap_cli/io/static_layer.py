@@ -167,15 +167,15 @@ def load_static_input(path: str | Path, wall_height: float = 2.5) -> StaticLayer
         yaml_p, npz_p = p / MAP_YAML, p / LAYER_FILE
         if npz_p.is_file():
             layer = read_static_layer(npz_p)
-            return _with_map(layer, read_map_yaml(yaml_p)) if yaml_p.is_file() else layer
+            return _with_map(layer, read_map_yaml(yaml_p, saver_unknown=True)) if yaml_p.is_file() else layer
         if yaml_p.is_file():
-            return layer_from_grid(read_map_yaml(yaml_p), wall_height)
+            return layer_from_grid(read_map_yaml(yaml_p, saver_unknown=True), wall_height)
         raise MapFileError(f"{p}: folder holds neither {MAP_YAML} nor {LAYER_FILE}; give a "
                            "build-static output folder or a map YAML")
     if p.suffix == ".npz":
         return read_static_layer(p)
     if p.suffix.lower() in (".yaml", ".yml"):
-        grid = read_map_yaml(p)
+        grid = read_map_yaml(p, saver_unknown=True)
         npz_p = p.with_name(LAYER_FILE)
         if p.name == MAP_YAML and npz_p.is_file():
             return _with_map(read_static_layer(npz_p), grid)

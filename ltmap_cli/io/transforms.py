@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, TransformError
+from ..errors import InputError, TransformError, bounded
 from .frames import OdometrySample, TfSample
 
 MOUNT_FORM = "parent:child=x,y,z,roll,pitch,yaw (metres, radians), e.g. base_link:laser=0.1,0,0.2,0,0,0"
@@ -46,7 +46,10 @@ class LookupFailure(TransformError):
 
 
 def norm(frame: str) -> str:
-    return frame.strip().lstrip("/")
+    """The one normalisation of frame ids (tf2's): no surrounding whitespace, no leading ``/``;
+    ``/laser``, ``laser`` and ``" /laser"`` are one frame. Used by the readers, the tf buffer,
+    ``--tf``, ``--fixed-frame``, ``info`` and ``replay``."""
+    return frame.strip().lstrip("/").strip()
 
 
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
@@ -138,6 +141,9 @@ class TfBuffer:
         self.window_ns = int(window_ns)
         self.edges: dict[str, _Edge] = {}  # child -> edge to its parent
         self.ignored: Counter[str] = Counter()  # "parent -> child from <source>" -> samples ignored
+        # samples with an empty frame name (an Odometry whose child_frame_id is ""), which tf2
+        # refuses: "<source> parent -> child" (the empty name shown as such) -> samples
+        self.unnamed: Counter[str] = Counter()
         # Caches, pure speed-ups (a lookup computes the same numbers with or without them): the
         # chain of parents per frame (dropped when an edge is made or removed) and, per edge, the
         # matrix of its last lookup with its stamp (dropped when the edge gets a sample). A sensor
@@ -152,8 +158,12 @@ class TfBuffer:
             source = "odom"
         else:
             source = "static" if sample.static else "tf"
-        self._add(norm(sample.parent), norm(sample.child), sample.stamp_ns, sample.translation,
-                  sample.rotation_xyzw, source)
+        parent, child = norm(sample.parent), norm(sample.child)
+        if not parent or not child:
+            kind = {"odom": "nav_msgs/Odometry", "tf": "/tf", "static": "/tf_static"}[source]
+            self.unnamed[f"{kind} {parent or '(empty header.frame_id)'} -> {child or '(empty child_frame_id)'}"] += 1
+            return
+        self._add(parent, child, sample.stamp_ns, sample.translation, sample.rotation_xyzw, source)
 
     def add_mount(self, spec: str) -> TfSample:
         """Add a user mount ``parent:child=x,y,z,roll,pitch,yaw``; it overrides the log's edge."""
@@ -288,7 +298,7 @@ class TfBuffer:
             parent = next((f for f in ("base_link", "base_footprint") if f in frames), target)
             return (f"no transform {parent} -> {source}: frame {source} is not in tf; give its mount with "
                     f"--tf {parent}:{source}=x,y,z,roll,pitch,yaw")
-        known = ", ".join(sorted(frames)[:12]) or "none"
+        known = bounded(sorted(frames))
         return (f"no transform {target} -> {source}: frame {target} is not in tf (frames: {known}); "
                 f"choose another with --fixed-frame or give it with --tf")
 
@@ -331,9 +341,12 @@ class TfBuffer:
         except LookupFailure as f:
             return None, f.reason
 
-    def fixed_frame(self, requested: str = "") -> str:
-        """``requested`` if given (it must be in tf), else ``map`` when tf has it, else ``odom``."""
-        return choose_fixed_frame(self.frames, requested)
+    def fixed_frame(self, requested: str = "", sensor_frames=()) -> str:
+        """``requested`` if given (a frame of tf, or one of ``sensor_frames``: the sensors' own
+        frame ids), else ``map`` when tf has it, else ``odom`` (``choose_fixed_frame``)."""
+        frames = self.frames
+        roots = {norm(f): (self.root(f) if norm(f) in frames else norm(f)) for f in sensor_frames}
+        return choose_fixed_frame(frames, requested, sensor_frames, roots, [f for f in frames if f not in self.edges])
 
     def tree_text(self, indent: str = "  ") -> str:
         """The frames as an indented tree; each edge shows its source and how many samples it got
@@ -362,16 +375,62 @@ class TfBuffer:
         return "\n".join(lines)
 
 
-def choose_fixed_frame(frames: set[str] | list[str], requested: str = "") -> str:
-    """The fixed frame for a set of frame names (as ``TfBuffer.fixed_frame``)."""
-    names = {norm(f) for f in frames}
+def choose_fixed_frame(frames: set[str] | list[str], requested: str = "", sensor_frames=(),
+                       roots: dict[str, str] | None = None, tf_roots=()) -> str:
+    """The fixed frame (as ``TfBuffer.fixed_frame``): ``requested`` if given, which must be a
+    frame of tf or a sensor's own frame (a map in that frame: the sensor stands still in it),
+    else ``map`` when tf has it, else ``odom``. Otherwise TransformError in one line naming
+    ``--fixed-frame`` and ``--tf`` with frames that exist: ``roots`` maps each sensor frame to
+    the root of its tf tree (itself when tf does not have it); ``tf_roots`` are the roots of tf."""
+    names = {norm(f) for f in frames} - {""}
+    sensors = sorted({norm(f) for f in sensor_frames} - {""})
     if requested:
-        if norm(requested) not in names:
-            raise TransformError(f"--fixed-frame {requested}: no frame {norm(requested)} in tf (frames: "
-                                 f"{', '.join(sorted(names)) or 'none'}); choose one of them")
-        return norm(requested)
+        want = norm(requested)
+        if want in names or want in sensors:
+            return want
+        raise TransformError(f"--fixed-frame {requested}: no frame {want} in tf (frames: "
+                             f"{bounded(sorted(names))}) nor among the sensors' frames "
+                             f"({bounded(sensors)}); choose one of them")
     for f in ("map", "odom"):
         if f in names:
             return f
-    raise TransformError(f"tf has neither map nor odom (frames: {', '.join(sorted(names)) or 'none'}); "
-                         f"choose the fixed frame with --fixed-frame")
+    raise TransformError(no_fixed_frame_reason(names, sensors, roots, tf_roots))
+
+
+def no_fixed_frame_reason(names: set[str], sensors: list[str], roots: dict[str, str] | None = None,
+                          tf_roots=()) -> str:
+    """Why no fixed frame could be chosen, and the ways out, with frames that exist: a root of
+    tf or of a sensor's tree (``--fixed-frame``), or a transform from a fixed frame (``--tf``)."""
+    roots = roots or {}
+    have = f"tf has neither map nor odom (frames in tf: {bounded(sorted(names))})"
+    placed = sorted({roots.get(f, f) for f in sensors} & names)  # tf roots above a sensor
+    trees = sorted(set(tf_roots) - set(placed))
+    alone = sorted(f for f in sensors if f not in names)  # sensor frames tf does not have
+    ways = []
+    if placed:
+        ways.append(f"--fixed-frame {placed[0]} (the root of the tf above the sensor"
+                    f"{'s' if len(sensors) > 1 else ''}{', or ' + bounded(placed[1:], limit=4) if placed[1:] else ''})")
+    if alone:
+        ways.append(f"--fixed-frame {alone[0]} (the sensor's own frame: a map with it standing still"
+                    f"{', or ' + bounded(alone[1:], limit=4) if alone[1:] else ''})")
+    if trees and not placed:
+        ways.append(f"--fixed-frame {trees[0]} (the root of tf{', or ' + bounded(trees[1:], limit=4) if trees[1:] else ''}"
+                    f"; then give the sensor's mount with --tf)")
+    if not ways:
+        return f"{have}; choose the fixed frame with --fixed-frame <frame>"
+    mount = f"--tf odom:{placed[0] if placed else roots.get(sensors[0], sensors[0])}=x,y,z,roll,pitch,yaw"
+    return f"{have}: choose the fixed frame with {' or '.join(ways)}, or give the transform from a fixed frame with {mount}"
+
+
+BASE_FRAMES = ("base_link", "base_footprint")  # the robot's frame when the configured one is not in tf
+
+
+def choose_base_frame(frames: set[str] | list[str], preferred: str) -> str:
+    """The robot's base frame: ``preferred`` (``map.robot.base_frame``) when tf has it, else
+    ``base_link`` or ``base_footprint`` when tf has one, else ``preferred`` (the robot's
+    footprint then cannot be placed and is counted as missing)."""
+    names = {norm(f) for f in frames}
+    want = norm(preferred)
+    if want in names:
+        return want
+    return next((f for f in BASE_FRAMES if f in names), want)

@@ -95,4 +95,4 @@ class FrameCaster:
         drop = flying_pixel_mask(depth, k.fx, k.fy, k.cx, k.cy, radius=rc.depth_outlier_radius,
                                  min_neighbors=rc.depth_outlier_min_neighbors)  # fmt: skip
         depth[drop] = np.nan
-        return DepthFrame(frame.stamp_ns, frame.frame_id, depth, k, frame.topic), int(drop.sum())
+        return DepthFrame(frame.stamp_ns, frame.frame_id, depth, k, frame.topic, log=frame.log), int(drop.sum())

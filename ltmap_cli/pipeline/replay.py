@@ -88,6 +88,9 @@ class FrameCounts:
     used: Counter = field(default_factory=Counter)  # topic -> frames integrated
     skipped: Counter = field(default_factory=Counter)  # reason -> frames skipped
     skipped_by_topic: Counter = field(default_factory=Counter)
+    used_by_log: Counter = field(default_factory=Counter)  # index in request.logs -> frames integrated
+    skipped_by_log: Counter = field(default_factory=Counter)
+    angle_max_off: Counter = field(default_factory=Counter)  # topic -> scans whose angle_max disagrees
     no_footprint: int = 0
     rays: int = 0
     depth_filtered_frames: int = 0  # depth frames passed through the flying-pixel filter
@@ -107,6 +110,7 @@ def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
         "cells": [int(g.data.shape[1]), int(g.data.shape[0])],
         "wall_height": layer.wall_height,
         "static_voxels": int((static.top_k + 1).clip(min=0).sum()),
+        "unknown_cells": int((static.occ < 0).sum()),  # on the map lattice: kept unknown in S and P
     }
     return static, info, layer
 
@@ -268,6 +272,8 @@ class Replay:
         """A run in which no frame was integrated fails, naming why (SPEC 4)."""
         if sum(self.counts.used.values()):
             return
+        if self.scheduler.fixed_later is not None:  # --fixed-frame named a frame the whole log lacks
+            self.scheduler.tf.fixed_frame(*self.scheduler.fixed_later)  # raises info's line for it
         logs = ", ".join(str(p) for p in self.req.logs)
         if self.counts.skipped:
             reason, n = self.counts.skipped.most_common(1)[0]
@@ -305,6 +311,9 @@ class Replay:
             frames_used=dict(c.used),
             frames_skipped=dict(c.skipped),
             frames_skipped_by_topic=dict(c.skipped_by_topic),
+            frames_used_by_log={str(p): c.used_by_log[i] for i, p in enumerate(self.req.logs)},
+            frames_skipped_by_log={str(p): c.skipped_by_log[i] for i, p in enumerate(self.req.logs)},
+            scans_angle_max_off=dict(c.angle_max_off),
             frames_without_footprint=c.no_footprint,
             depth_outlier_filter={"enabled": cfg.replay.depth_outlier_filter, "frames": c.depth_filtered_frames,
                                   "pixels_dropped": c.depth_filtered_pixels},  # fmt: skip
@@ -341,9 +350,15 @@ class Replay:
             for s in self._tf_sinks:
                 s.on_tf(self.state, event.sample)
         elif isinstance(event, Skipped):
-            self.counts.skipped[event.reason] += 1
-            self.counts.skipped_by_topic[event.topic] += 1
+            c = self.counts
+            c.skipped[event.reason] += 1
+            c.skipped_by_topic[event.topic] += 1
+            c.skipped_by_log[event.frame.log] += 1
+            if getattr(event.frame, "angle_max_off", False):
+                c.angle_max_off[event.topic] += 1
         else:
+            if getattr(event.frame, "angle_max_off", False):
+                self.counts.angle_max_off[event.topic] += 1
             if not self._warm:
                 self._warm_up()
             raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
@@ -393,6 +408,7 @@ class Replay:
             c.depth_filtered_frames += 1
             c.depth_filtered_pixels += cast.filtered_pixels
         c.used[placed.topic] += 1
+        c.used_by_log[frame.log] += 1
         c.rays += r.rays
         done = FrameDone(placed.topic, frame, placed.T, run.lmap.frame_id,
                          placed.lookup_s + cast.rays_s + cast.cast_s + integrate_s)  # fmt: skip

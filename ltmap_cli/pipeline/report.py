@@ -18,6 +18,9 @@ class Report:
     frames_used: dict  # topic -> frames integrated
     frames_skipped: dict  # reason -> frames
     frames_skipped_by_topic: dict
+    frames_used_by_log: dict  # log path -> frames integrated
+    frames_skipped_by_log: dict
+    scans_angle_max_off: dict  # topic -> scans whose angle_max disagrees with their ranges
     frames_over_depth_max_rate: dict
     frames_without_footprint: int
     depth_outlier_filter: dict

@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..errors import TransformError
 from ..io.frames import OdometrySample, TfSample
-from ..io.transforms import TfBuffer
+from ..io.transforms import TfBuffer, choose_base_frame, norm
 
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
 
@@ -50,6 +51,7 @@ class Placed:
 class Skipped:
     topic: str
     reason: str
+    frame: object = None
 
 
 class Scheduler:
@@ -67,6 +69,7 @@ class Scheduler:
         self.timer = timer
         self.fixed_frame: str | None = None
         self.base_frame: str | None = None
+        self.fixed_later: tuple | None = None  # (--fixed-frame, sensor frames) when tf lacked it at the start
         self.tf_high_ns: int | None = None  # newest header stamp of a dynamic tf / odometry sample
         self._pending: list = []
         self._seq = 0
@@ -102,22 +105,28 @@ class Scheduler:
             self.timer.add(stage, dt)
         return dt
 
-    def _choose_frames(self) -> None:
-        frames = self.tf.frames
-        self.fixed_frame = self.tf.fixed_frame(self.request)
-        base = self.base_request
-        if base not in frames:
-            base = next((f for f in ("base_link", "base_footprint") if f in frames), base)
-        self.base_frame = base
+    def _choose_frames(self, sensor_frames: set[str]) -> None:
+        """The fixed frame (``TfBuffer.fixed_frame``: a sensor's own frame may be asked for) and
+        the robot's base frame, once tf has had the samples before the first frame."""
+        try:
+            self.fixed_frame = self.tf.fixed_frame(self.request, sensor_frames)
+        except TransformError:
+            if not self.request:
+                raise
+            # not in tf yet (a map frame that a localizer starts publishing later): frames are
+            # skipped until it comes; if it never does, the run ends with choose_fixed_frame's line
+            self.fixed_frame = norm(self.request)
+            self.fixed_later = (self.request, sensor_frames)
+        self.base_frame = choose_base_frame(self.tf.frames, self.base_request)
 
     def _place(self, topic: str, frame) -> Placed | Skipped:
         t0 = time.perf_counter()
         if self.fixed_frame is None:
-            self._choose_frames()
+            self._choose_frames({frame.frame_id, *(p[4].frame_id for p in self._pending)})
         if not frame.frame_id:
-            return Skipped(topic, f"{topic}: message has an empty header.frame_id")
+            return Skipped(topic, f"{topic}: message has an empty header.frame_id", frame)
         T, reason = self.tf.try_lookup(self.fixed_frame, frame.frame_id, frame.stamp_ns)
         if T is None:
-            return Skipped(topic, reason)
+            return Skipped(topic, reason, frame)
         robot, _ = self.tf.try_lookup(self.fixed_frame, self.base_frame, frame.stamp_ns)
         return Placed(topic, frame, T, robot, self._time("tf", t0))

@@ -1,0 +1,78 @@
+"""What a finished replay should tell its user beyond the numbers: warnings and hints read off
+the report (report.json's dict), as one-line strings. Pure: no files, no printing; the replay
+command prints them as ``ltmap: warning:`` lines.
+
+- LaserScans whose ``angle_max`` disagrees with their ranges (their beams were placed from the
+  increment): one line per topic with the count.
+- Several logs where one contributed no frame (its frames could not be placed, e.g. they are not
+  in the other logs' tf): the log is named.
+- A long-term map that is nearly empty because nothing was seen for ``map.layers.st_rise_s``
+  (a short log, a robot that moved on): the setting and the log's duration are named.
+- A static map that was resampled to the map's resolution.
+"""
+
+from __future__ import annotations
+
+LT_NEARLY_EMPTY = 0.05  # long-term voxels below this fraction of the voxels seen occupied: "nearly empty"
+ST_RISE_HINT_S = 5.0  # the value a hint proposes for map.layers.st_rise_s on a short log
+
+
+def replay_hints(report: dict, *, st_rise_s: float, resolution: float) -> list[str]:
+    """Warnings for a replay's ``report`` (as written to report.json); ``st_rise_s`` and
+    ``resolution`` are the run's ``map.layers.st_rise_s`` and ``map.resolution``."""
+    out: list[str] = []
+    for topic, n in sorted((report.get("scans_angle_max_off") or {}).items()):
+        out.append(f"{n} scans on {topic} have an angle_max that disagrees with their ranges; their beams were "
+                   f"placed at angle_min + i * angle_increment, as ROS does")
+    out.extend(_idle_logs(report))
+    hint = _long_term_hint(report, st_rise_s)
+    if hint:
+        out.append(hint)
+    static = report.get("static") or {}
+    src = static.get("source_resolution")
+    if src and abs(src - resolution) > 1e-9 * resolution:
+        unknown = static.get("unknown_cells")
+        out.append(f"the static map {static.get('path')} has {src:g} m cells; it was resampled to the map's "
+                   f"{resolution:g} m (a cell is occupied when any source cell in it is, unknown only where no "
+                   f"known source cell falls" + (f": {unknown} unknown cells" if unknown is not None else "")
+                   + "); give --resolution " + f"{src:g} to keep its cells")
+    return out
+
+
+def _idle_logs(report: dict) -> list[str]:
+    used = report.get("frames_used_by_log") or {}
+    if len(used) < 2:
+        return []
+    skipped = report.get("frames_skipped_by_log") or {}
+    reasons = report.get("frames_skipped") or {}
+    top = max(reasons.items(), key=lambda kv: kv[1])[0] if reasons else None
+    out = []
+    for log, n in used.items():
+        if n:
+            continue
+        k = skipped.get(log, 0)
+        if k:  # a log without sensor frames (tf only) gives its tf: that is not nothing
+            out.append(f"log {log} contributed nothing to the map: all {k} of its sensor frames were skipped"
+                       + (f" (the most common reason: {top})" if top else "")
+                       + "; are its frames in the tf the logs give? check it with `ltmap info` and give the missing "
+                       "transform with --tf")
+    return out
+
+
+def _long_term_hint(report: dict, st_rise_s: float) -> str | None:
+    if report.get("static"):
+        return None  # with S, walls stay out of LT by design: a small LT says nothing
+    vox = report.get("voxels") or {}
+    seen = int(vox.get("occupied_O") or 0)
+    lt = int(vox.get("long_term_occupied") or 0)
+    if seen == 0 or lt >= LT_NEARLY_EMPTY * seen:
+        return None
+    duration = float(report.get("log_duration_s") or 0.0)
+    if duration < st_rise_s:
+        why = f"the log lasts {duration:.1f} s, shorter than that"
+    else:
+        why = f"the log lasts {duration:.1f} s, and little stayed in view that long"
+    proposal = f"; for a short log lower it, e.g. --set map.layers.st_rise_s={ST_RISE_HINT_S:g}" \
+        if st_rise_s > ST_RISE_HINT_S else ""
+    return (f"the long-term map is nearly empty ({lt} voxels; {seen} seen occupied): a voxel enters it after "
+            f"being seen for map.layers.st_rise_s = {st_rise_s:g} s, and {why}{proposal}")

@@ -1,0 +1,52 @@
+"""The RealSense SDK's own bag layout (RealSense Viewer, rs-record, ``rs2::recorder``).
+
+A stream's topics hang under ``/device_<d>/sensor_<s>/<Stream>_<i>/``: images on
+``.../image/data`` (depth as ``mono16``), the stream's CameraInfo on ``.../info/camera_info``
+(not beside the image), its extrinsics on ``.../tf/<i>`` (a geometry_msgs/Transform), and the
+sensor's options as ``std_msgs/Float32`` topics ``/device_<d>/sensor_<s>/option/<Name>/value``,
+among them ``Depth Units``: metres per depth unit (0.001 by default, other values on request).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping
+from typing import Any
+
+CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+FLOAT32 = "std_msgs/msg/Float32"
+DEPTH_UNITS_OPTION = "Depth Units"
+DEFAULT_DEPTH_UNITS = 0.001  # metres per unit of a 16-bit depth image (ROS' 16UC1 convention)
+
+_STREAM_IMAGE = re.compile(r"^(?P<sensor>.*/sensor_\d+)/(?P<stream>[^/]+)/image/data$")
+
+
+def camera_info_topic(image_topic: str, topics: Mapping[str, Any]) -> str | None:
+    """The CameraInfo topic of a RealSense SDK image topic (``.../<Stream>/info/camera_info``),
+    or None when ``image_topic`` is not laid out that way or the topic is absent."""
+    m = _STREAM_IMAGE.match(image_topic)
+    if m is None:
+        return None
+    name = f"{m['sensor']}/{m['stream']}/info/camera_info"
+    t = topics.get(name)
+    return name if t is not None and getattr(t, "msgtype", None) == CAMERA_INFO else None
+
+
+def depth_units_topic(image_topic: str, topics: Mapping[str, Any]) -> str | None:
+    """The ``Depth Units`` option topic of the sensor that records ``image_topic``, or None."""
+    m = _STREAM_IMAGE.match(image_topic)
+    if m is None:
+        return None
+    name = f"{m['sensor']}/option/{DEPTH_UNITS_OPTION}/value"
+    t = topics.get(name)
+    return name if t is not None and getattr(t, "msgtype", None) == FLOAT32 else None
+
+
+def depth_units(msg: Any) -> float | None:
+    """Metres per depth unit from a ``Depth Units`` Float32 message; None when not a usable
+    value (then the default applies)."""
+    try:
+        v = float(msg.data)
+    except (AttributeError, TypeError, ValueError):
+        return None
+    return v if 1e-7 <= v <= 1.0 else None
