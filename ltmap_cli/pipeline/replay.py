@@ -23,14 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis.planner import plan_path
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, TransformError, output_error
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.logs import open_logs
+from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
 from ..outputs.names import check_replay_outputs
+from ..outputs.snapshots import load_resume
 from .clock import Ticker
 from .executor import OrderedExecutor
 from .rays import CastFrame, FrameCaster
@@ -99,8 +102,6 @@ class FrameCounts:
 
 def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
     """S from a build-static output or a map_server YAML, resampled onto the map lattice."""
-    from ..io.static_layer import load_static_input
-
     layer = load_static_input(path, wall_height=cfg.replay.static_wall_height)
     g = layer.grid
     static = StaticGrid.from_height_map(g.data, layer.height, g.resolution, g.origin, cfg.map.resolution)
@@ -193,8 +194,6 @@ class Replay:
                 static_info["long_term_seed_voxels"] = len(seeds)
         resume_info = None
         if req.resume is not None:
-            from ..outputs.snapshots import load_resume
-
             resume_info = load_resume(lmap, req.resume)
         tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
         mounts = [tf.add_mount(spec) for spec in cfg.replay.tf]
@@ -382,8 +381,6 @@ class Replay:
                 self._compile.wait()
             warm_up(self.cfg.map, ["base", "outputs"])
             if self.cfg.replay.plan_goal:
-                from ..analysis.planner import plan_path
-
                 plan_path(np.zeros((4, 4), dtype=bool), (0, 0), (3, 3))
 
     def _integrate(self, placed: Placed, cast: CastFrame, wait_s: float | None) -> None:

@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from ..analysis.events import event_history, events_csv, find_events, percentiles, voxel_keys
+from ..analysis.plan_tracker import PlanTracker
 from ..core.grid import band_k_range, coord_to_pos
 from ..core.layers import LayeredMap
 from ..core.projection import Projection, project, static_fills, virtual_scan
@@ -25,6 +26,7 @@ from ..io.atomic import write_text_atomic
 from ..io.frames import OdometrySample, ScanFrame, TfSample
 from ..io.mapfile import GridMap, write_map
 from ..io.transforms import norm
+from ..outputs.snapshots import write_snapshot
 
 NS = 1_000_000_000
 
@@ -108,8 +110,6 @@ class PlannerSink(Sink):
     tick_stage = "projection"
 
     def __init__(self, cfg):
-        from ..analysis.plan_tracker import PlanTracker
-
         self.tracker = PlanTracker(tuple(cfg.replay.plan_goal), cfg.replay.robot_radius)
         self.period = cfg.replay.plan_period
         self.next_s = 0.0
@@ -257,8 +257,6 @@ class SnapshotSink(Sink):
         return {"snapshots": self.written}
 
     def _write(self, run, t_s: float | None) -> None:
-        from ..outputs.snapshots import write_snapshot
-
         paths = write_snapshot(run.lmap, run.out / self.FOLDER, t_s, {"fixed_frame": run.fixed_frame})
         final = run.final / self.FOLDER
         self.written.append({"log_time_s": t_s, **{k: str(final / Path(v).name) for k, v in paths.items()}})
