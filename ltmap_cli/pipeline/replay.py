@@ -33,7 +33,7 @@ from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..core.projection import Projection, project
 from ..core.sensors import depth_to_points, scan_to_points, transform_points
-from ..errors import InputError, OutputError, TransformError, output_error
+from ..errors import InputError, TransformError
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
@@ -63,6 +63,7 @@ class ReplayRequest:
     out_dir: Path
     static: Path | None = None
     resume: Path | None = None
+    final_dir: Path | None = None  # where out_dir is swapped in (OutputFolder); paths shown name it
 
 
 @dataclass
@@ -170,28 +171,12 @@ class Replay:
 
     # ------------------------------------------------------------------------------------
     def run(self) -> dict:
-        req = self.req
         t_wall0 = time.perf_counter()
-        self._created_out = not req.out_dir.exists()
-        try:  # first: a bad -o must not cost a whole replay
-            req.out_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise output_error(err, f"the output folder {req.out_dir}") from None
-        if not os.access(req.out_dir, os.W_OK):
-            raise OutputError(f"cannot write the output folder {req.out_dir}: permission denied; choose another -o")
-        from ..outputs.names import check_replay_outputs
-
-        check_replay_outputs(req.out_dir, self.cfg, static=req.static is not None)
-        try:
+        try:  # out_dir: a staging folder that OutputFolder swaps in, or removes if this fails
             return self._setup_and_run(t_wall0)
         except BaseException:
-            import shutil
-
             if self.mcap is not None:
                 self.mcap.abort()
-            shutil.rmtree(self._staging(), ignore_errors=True)
-            if self._created_out and req.out_dir.is_dir() and not any(req.out_dir.iterdir()):
-                req.out_dir.rmdir()  # a failed run into a new folder leaves nothing behind
             raise
 
     def _setup_and_run(self, t_wall0: float) -> dict:
@@ -327,7 +312,6 @@ class Replay:
             self._publish_maps(self._last_stamp, force=True)
             self.mcap.close()
         self._snapshot(None)
-        self._commit_snapshots()
         wall = time.perf_counter() - t_wall0
         t2 = time.perf_counter()
         stage["output"] += t2 - t1
@@ -384,6 +368,8 @@ class Replay:
             "processing_latency_ms": processing,
             "outputs": outputs,
         }
+        if req.final_dir is not None:  # the paths the user will find, not the staging folder's
+            report = _relocate(report, str(req.out_dir), str(req.final_dir))
         write_text_atomic(out / "config.yaml", self._inputs_comment() + dump_config(cfg))
         write_text_atomic(out / "report.json", json.dumps(report, indent=2, default=_json_default) + "\n")
         return report
@@ -422,7 +408,8 @@ class Replay:
             args += ["--static", str(req.static)]
         if req.resume is not None:
             args += ["--resume", str(req.resume)]
-        args += ["-o", str(req.out_dir), "--config", str(req.out_dir / "config.yaml")]
+        shown = req.final_dir if req.final_dir is not None else req.out_dir
+        args += ["-o", str(shown), "--config", str(shown / "config.yaml")]
         return ("# every parameter of this run; its inputs were:\n"
                 f"# {shlex.join(args)}\n")  # fmt: skip
 
@@ -552,26 +539,8 @@ class Replay:
     def _snapshot(self, t_s: float | None) -> None:
         from ..outputs.snapshots import write_snapshot
 
-        # staged beside the output: a run that fails leaves the folder's snapshots/ as it was
-        paths = write_snapshot(self.lmap, self._staging(), t_s, {"fixed_frame": self.fixed_frame})
-        final = self.req.out_dir / "snapshots"
-        self.snapshots.append({"log_time_s": t_s, **{k: str(final / Path(v).name) for k, v in paths.items()}})
-
-    def _staging(self) -> Path:
-        return self.req.out_dir / f".snapshots.partial-{os.getpid()}"
-
-    def _commit_snapshots(self) -> None:
-        """This run's snapshots become OUT/snapshots (the previous run's, if any, go)."""
-        import shutil
-
-        staging, final = self._staging(), self.req.out_dir / "snapshots"
-        if not staging.is_dir():
-            return
-        old = final.with_name(f".snapshots.old-{os.getpid()}")
-        if final.exists():
-            os.replace(final, old)
-        os.replace(staging, final)
-        shutil.rmtree(old, ignore_errors=True)
+        paths = write_snapshot(self.lmap, self.req.out_dir / "snapshots", t_s, {"fixed_frame": self.fixed_frame})
+        self.snapshots.append({"log_time_s": t_s, **paths})
 
     def _process(self, topic: str, item) -> None:
         """Place a sensor frame (tf lookups, main thread), have its rays computed (worker thread
@@ -828,6 +797,17 @@ class Replay:
         if lmap.static is not None:
             save("static", project(lmap, use_lt=False, use_o_free=False), "trinary")
         return written
+
+
+def _relocate(value, old: str, new: str):
+    """``value`` (report dicts and lists) with every string path under ``old`` moved under ``new``."""
+    if isinstance(value, dict):
+        return {k: _relocate(v, old, new) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_relocate(v, old, new) for v in value]
+    if isinstance(value, str) and (value == old or value.startswith(old + os.sep)):
+        return new + value[len(old):]
+    return value
 
 
 class _TimedIter:
