@@ -31,6 +31,7 @@ from ..core.layers import LayeredMap
 from ..errors import MapFileError
 from ..io.ply import write_voxels_ply
 from ..io.state import read_state, write_state
+from .folder import OutputFolder
 
 LT_CLIP = 1e-3
 
@@ -173,19 +174,18 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
 
 
 def resolve_resume(path: str | Path) -> Path:
-    """The snapshot file a --resume argument names: a state .npz, an .ot, or an output folder."""
+    """The snapshot file a --resume argument names: a state .npz, an .ot, or a completed replay
+    output folder (its manifest names snapshots/state_final.npz, or else its latest state)."""
     p = Path(path)
     if p.is_dir():
-        for cand in (p / "snapshots" / "state_final.npz", p / "state_final.npz"):
-            if cand.is_file():
-                return cand
-        states = sorted(p.glob("snapshots/state_*.npz")) or sorted(p.glob("state_*.npz"))
+        fix = "give a completed ltmap replay output folder, or a snapshot file (.npz or .ot)"
+        manifest = OutputFolder.completed(p, "--resume", command="replay", fix=fix)
+        states = sorted(n for n in manifest["files"] if n.startswith("snapshots/state_") and n.endswith(".npz"))
+        if "snapshots/state_final.npz" in states:
+            return p / "snapshots" / "state_final.npz"
         if states:
-            return states[-1]
-        raise MapFileError(
-            f"--resume {p}: no snapshots/state_final.npz in this folder; give an ltmap replay output "
-            "folder or a snapshot file (.npz or .ot)"
-        )
+            return p / states[-1]
+        raise MapFileError(f"--resume {p}: no snapshots/state_final.npz in this folder; {fix}")
     if not p.is_file():
         raise MapFileError(f"--resume {p}: no such file or folder; give a replay output folder or a snapshot")
     if p.suffix not in (".npz", ".ot"):
