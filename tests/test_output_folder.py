@@ -281,6 +281,13 @@ def test_a_full_disk_while_writing_is_one_line_and_keeps_the_old_folder(tmp_path
     assert contents(out_path) == before and beside(out_path) == ["out"]
 
 
+def test_an_error_reading_an_input_is_not_called_a_write_error(tmp_path):
+    log = tmp_path / "log.mcap"
+    with pytest.raises(PermissionError), OutputFolder(tmp_path / "out", command="replay"):
+        raise PermissionError(errno.EACCES, os.strerror(errno.EACCES), str(log))
+    assert beside(tmp_path / "out") == []
+
+
 def test_a_full_disk_while_writing_the_manifest_keeps_the_old_folder(tmp_path, monkeypatch):
     out_path = tmp_path / "out"
     make_run(out_path, OLD)
@@ -323,6 +330,20 @@ def test_resume_takes_a_completed_folder_or_an_explicit_snapshot_only(tmp_path):
     with pytest.raises(MapFileError, match="not a completed ltmap output.*or a snapshot file"):
         resolve_resume(out_path)
     assert resolve_resume(out_path / "snapshots" / "state_final.npz") == out_path / "snapshots" / "state_final.npz"
+
+
+def test_resume_from_the_folder_the_run_replaces(tmp_path):
+    """Day 2 into day 1's folder: --resume reads the old run before the new one is swapped in."""
+    out_path = tmp_path / "out"
+    assert CliRunner().invoke(cli, ["replay", str(LOG_NEW), "-o", str(out_path), "-q", "--no-plots"]).exit_code == 0
+    day1 = json.loads((out_path / "report.json").read_text())["voxels"]["long_term_occupied"]
+    r = CliRunner().invoke(cli, ["replay", str(LOG_OLD), "--resume", str(out_path), "-o", str(out_path), "-q",
+                                 "--no-plots"])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    report = json.loads((out_path / "report.json").read_text())
+    assert report["resume"]["long_term_voxels"] > 0 and day1 > 0
+    assert report["resume"]["path"] == str(out_path / "snapshots" / "state_final.npz")
+    assert OutputFolder.completed(out_path)["logs"] == [str(LOG_OLD)] and beside(out_path) == ["out"]
 
 
 def test_inputs_inside_the_output_folder_are_refused(tmp_path):

@@ -56,6 +56,8 @@ ASIDE = "ltmap-old-"
 LOCK = "ltmap-lock"
 TEST_PAUSE_ENV = "LTMAP_TEST_PAUSE"  # tests only: "POINT:FILE" -> at POINT touch FILE, sleep (see _pause)
 
+# errors that mean the output could not be written, wherever they are raised
+WRITE_ERRNOS = {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EFBIG}
 _AT_FDCWD = -100
 _RENAME_EXCHANGE = 2
 
@@ -116,15 +118,23 @@ class OutputFolder:
                 shutil.rmtree(self.staging, ignore_errors=True)
         finally:
             self._lock.release()
-        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
-            raise self._write_error(exc) from None
+        if isinstance(exc, OSError):
+            error = self._write_error(exc)
+            if error is not None:
+                raise error from None
 
-    def _write_error(self, err: OSError) -> OutputError:
+    def _write_error(self, err: OSError) -> OutputError | None:
+        """One line for a failure writing the staging folder (a full disk), naming the file as
+        it would have been in the final folder; None for other errors (reading an input)."""
         name = getattr(err, "filename", None)
-        where = name or self.final
+        where = None
         if name and self.staging is not None:
-            with contextlib.suppress(ValueError):
+            with contextlib.suppress(ValueError, OSError):
                 where = self.final / Path(name).resolve().relative_to(self.staging.resolve())
+        if where is None and err.errno in WRITE_ERRNOS:
+            where = name or self.final
+        if where is None:
+            return None
         return OutputError(f"cannot write {where}: {err.strerror or err}; {self.option} {self.final} is left as it "
                            "was (free some space, or choose another output folder)")  # fmt: skip
 
