@@ -226,14 +226,24 @@ def test_a_lock_file_removed_by_its_holder_is_not_shared(tmp_path):
 
 
 # -- unit: a kill between the two renames --------------------------------------------------------
-class Killed(BaseException):
-    pass
-
-
-def test_a_kill_between_the_two_renames_is_restored_at_the_next_start(tmp_path, monkeypatch):
+def test_a_kill_between_the_two_renames_is_restored_at_the_next_start(tmp_path):
     """Where names cannot be exchanged atomically: the old folder is renamed aside, then the new
-    one into place. A kill between the two leaves no folder; the next ltmap command restores the
-    old run (a run that did not end is as if it never started)."""
+    one into place. A kill between the two leaves no folder, the old run aside and the new one
+    complete in its staging folder (the state built here; the slow test kills a real run there).
+    The next ltmap command restores the old run: a run that did not end is as if it never started."""
+    out_path = tmp_path / "out"
+    make_run(out_path, OLD)
+    before = contents(out_path)
+    staged = tmp_path / "staged"
+    make_run(staged, NEW)
+    os.rename(out_path, tmp_path / ".out.ltmap-old-k1ll3d00")
+    os.rename(staged, tmp_path / ".out.ltmap-staging-k1ll3d00")
+    (tmp_path / f".out.{LOCK}").write_text('{"pid": 1}')  # a killed run's lock file: not locked
+    OutputFolder.completed(out_path)  # a reader restores it
+    assert contents(out_path) == before and beside(out_path) == ["out"]
+
+
+def test_ctrl_c_between_the_two_renames_puts_the_old_run_back(tmp_path, monkeypatch):
     out_path = tmp_path / "out"
     make_run(out_path, OLD)
     before = contents(out_path)
@@ -241,19 +251,16 @@ def test_a_kill_between_the_two_renames_is_restored_at_the_next_start(tmp_path, 
 
     def pause(point):
         if point == "aside":
-            raise Killed  # stands for SIGKILL: nothing after this point runs...
+            raise KeyboardInterrupt
 
     monkeypatch.setattr(folder_mod, "_pause", pause)
-    monkeypatch.setattr(OutputFolder, "__exit__", lambda *a: None)  # ...not even the cleanup
-    with pytest.raises(Killed), OutputFolder(out_path, command="replay") as out:
+    with pytest.raises(KeyboardInterrupt), OutputFolder(out_path, command="replay") as out:
         write(out, NEW)
         out.commit()
-    os.close(out._lock.fd)  # the kernel releases a killed process' lock
-    left = beside(out_path)
-    assert "out" not in left and any(".out.ltmap-old-" in n for n in left)
-    assert any(".out.ltmap-staging-" in n for n in left)
-    OutputFolder.completed(out_path)  # a reader restores it
     assert contents(out_path) == before and beside(out_path) == ["out"]
+    monkeypatch.setattr(folder_mod, "_pause", lambda point: None)
+    make_run(out_path, NEW)  # two renames, uninterrupted
+    assert set(contents(out_path)) == set(NEW) | {MANIFEST} and beside(out_path) == ["out"]
 
 
 def test_restore_takes_only_a_complete_aside(tmp_path):

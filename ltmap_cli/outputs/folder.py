@@ -411,8 +411,13 @@ def _swap(staging: Path, target: Path) -> None:
     else:
         aside = parent / (f".{target.name}.{ASIDE}" + staging.name.rsplit(STAGING, 1)[-1])
         os.rename(target, aside)
-        _pause("aside")
-        os.rename(staging, target)
+        try:
+            _pause("aside")
+            os.rename(staging, target)
+        except BaseException:  # Ctrl-C, or the rename failed: the old run back (a kill: the next start)
+            with contextlib.suppress(OSError):
+                os.rename(aside, target)
+            raise
         _fsync_dir(parent)
         _pause("renamed")
         shutil.rmtree(aside, ignore_errors=True)

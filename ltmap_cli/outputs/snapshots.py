@@ -149,8 +149,6 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
     """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
-    from ..io.atomic import write_bytes_atomic
-
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
     thr = lmap.cfg.projection.occupied_thresh
@@ -158,7 +156,7 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     ot_path = folder / f"long_term_{name}.ot"
     keys, lt = long_term_voxels(lmap)
     data = snapshot_ot_bytes(lmap, (keys, lt))
-    write_bytes_atomic(ot_path, data)
+    ot_path.write_bytes(data)  # the folder is a staging folder (outputs.folder): no temporary name needed
     del data
     out["ot"] = str(ot_path)
     occ = lt >= thr
