@@ -27,6 +27,9 @@ A run that starts removes, under the lock, every staging and aside folder a kill
 (whatever its pid). A folder that exists, is not empty and was not written by ltmap is refused
 unless ``force``: ltmap's folders hold the manifest, or, written before the manifest existed,
 the files an older ltmap wrote last (``LEGACY_MARKERS``).
+
+Tests kill a run at named points (``_pause``: ``locked``, ``commit``, ``manifest``, ``exchanged``,
+``aside``, ``renamed``) with ``LTMAP_TEST_PAUSE=POINT:FILE``; nothing else reads that variable.
 """
 
 from __future__ import annotations
@@ -49,8 +52,8 @@ from .. import __version__
 from ..errors import MapFileError, OutputError
 
 MANIFEST = "ltmap_manifest.json"
-MANIFEST_MAX_BYTES = 64 * 2**20
-SYNC_THREADS = 8  # files hashed and fsynced at once by commit  # a manifest is a few kB; a bigger file is not one
+MANIFEST_MAX_BYTES = 64 * 2**20  # a manifest is a few kB; a bigger file is not one
+SYNC_THREADS = 8  # files hashed and fsynced at once by commit
 # the files an older ltmap (no manifest) wrote last into its folders: such a folder is ltmap's
 LEGACY_MARKERS = {"replay": ("report.json", "config.yaml"), "build-static": ("static.yaml", "static_layer.npz")}
 STAGING = "ltmap-staging-"
