@@ -199,6 +199,7 @@ def test_a_second_run_is_refused_with_one_line_naming_the_first(tmp_path):
     finally:
         holder.kill()
         holder.wait()
+    assert msg.endswith("is writing this folder; wait for it to end, or choose another output folder")
     # killed: the kernel released its lock; its staging folder is removed by the next run
     assert any(".out.ltmap-staging-" in n for n in beside(out_path))
     make_run(out_path, NEW)
@@ -223,6 +224,21 @@ def test_a_lock_file_removed_by_its_holder_is_not_shared(tmp_path):
     assert not third.try_acquire()
     os.close(waiter_fd)
     second.release()
+
+
+def test_a_single_output_file_is_locked_and_a_killed_runs_temporary_files_go(tmp_path):
+    log = tmp_path / "log.mcap"
+    stale = [tmp_path / ".log.k1ll3d.tmp.mcap"]  # what atomic_path left when a run was killed
+    kept = [tmp_path / ".log.k1ll3d.tmp.bag", tmp_path / ".other.k1ll3d.tmp.mcap", tmp_path / "log.mcap"]
+    for f in stale + kept:
+        f.write_bytes(b"x")
+    with folder_mod.locked_file(log, "simulate"):
+        assert not any(f.exists() for f in stale) and all(f.exists() for f in kept)
+        with pytest.raises(OutputError) as e, folder_mod.locked_file(log, "simulate"):
+            pass
+        assert f"-o {log}: another ltmap simulate (pid {os.getpid()} on " in str(e.value)
+        assert str(e.value).endswith("is writing this file; wait for it to end, or choose another output file")
+    assert sorted(os.listdir(tmp_path)) == sorted(f.name for f in kept)
 
 
 # -- unit: a kill between the two renames --------------------------------------------------------

@@ -59,6 +59,7 @@ LEGACY_MARKERS = {"replay": ("report.json", "config.yaml"), "build-static": ("st
 STAGING = "ltmap-staging-"
 ASIDE = "ltmap-old-"
 LOCK = "ltmap-lock"
+READER = "(reader)"  # the lock's command while OutputFolder.completed restores a folder
 TEST_PAUSE_ENV = "LTMAP_TEST_PAUSE"  # tests only: "POINT:FILE" -> at POINT touch FILE, sleep (see _pause)
 
 # errors that mean the output could not be written, wherever they are raised
@@ -223,7 +224,7 @@ class OutputFolder:
         p = Path(path)
         label = f"{option} {p}".strip()
         target = Path(os.path.abspath(p))
-        lock = _Lock(target.parent / f".{target.name}.{LOCK}", label, "read")
+        lock = _Lock(target.parent / f".{target.name}.{LOCK}", label, READER)
         if target.parent.is_dir() and os.access(target.parent, os.W_OK) and lock.try_acquire():
             try:
                 recover(target)
@@ -251,9 +252,10 @@ def locked_file(path: str | os.PathLike, command: str, option: str = "-o"):
     """Hold the lock of an output *file* (``simulate -o log.mcap``, its ground truth) while it is
     written under a temporary name and renamed (``io.atomic``), and remove the temporary files a
     killed run left beside it (``.STEM.*.tmpSUFFIX``)."""
+    label = f"{option} {path}"
     path = Path(os.path.abspath(path))
     path.parent.mkdir(parents=True, exist_ok=True)
-    lock = _Lock(path.parent / f".{path.name}.{LOCK}", f"{option} {path}", command)
+    lock = _Lock(path.parent / f".{path.name}.{LOCK}", label, command, what="file")
     lock.acquire()
     try:
         for n in os.listdir(path.parent):
@@ -430,16 +432,17 @@ def _swap(staging: Path, target: Path) -> None:
 class _Lock:
     """An exclusive ``flock`` on a file beside the folder, holding who took it."""
 
-    def __init__(self, path: Path, label: str, command: str):
+    def __init__(self, path: Path, label: str, command: str, what: str = "folder"):
         self.path = path
         self.label = label
-        self.command = command
+        self.command = command  # READER: OutputFolder.completed restoring a folder
+        self.what = what
         self.fd: int | None = None
 
     def acquire(self) -> None:
         if not self.try_acquire():
-            raise OutputError(f"{self.label}: {self._holder()} is writing this folder; wait for it to end, or "
-                              "choose another output folder")  # fmt: skip
+            raise OutputError(f"{self.label}: {self._holder()} this {self.what}; wait for it to end, or "
+                              f"choose another output {self.what}")  # fmt: skip
 
     def try_acquire(self) -> bool:
         while True:
@@ -471,10 +474,11 @@ class _Lock:
     def _holder(self) -> str:
         try:
             info = json.loads(self.path.read_text()[:4096])
-            return (f"another ltmap {info['command']} (pid {info['pid']} on {info['host']}, started "
-                    f"{info['started']})")  # fmt: skip
+            who = "another ltmap command" if info["command"] == READER else f"another ltmap {info['command']}"
+            doing = "is checking" if info["command"] == READER else "is writing"
+            return f"{who} (pid {info['pid']} on {info['host']}, started {info['started']}) {doing}"
         except (OSError, ValueError, KeyError, TypeError):
-            return "another ltmap process"
+            return "another ltmap process is writing"
 
     def release(self) -> None:
         if self.fd is None:
