@@ -15,6 +15,7 @@ from ltmap_cli.analysis.diff import align, diff_maps, diff_voxels
 from ltmap_cli.cli import cli
 from ltmap_cli.errors import InputError, MapFileError
 from ltmap_cli.io.mapfile import GridMap
+from ltmap_cli.outputs.folder import OutputFolder
 
 A_ = 0.05 * 0.05  # m^2 of a 0.05 m cell
 
@@ -222,13 +223,29 @@ def test_png_overlay(tmp_path):
     assert not list(png.parent.glob(".*tmp*"))  # no temporary file left behind
 
 
+def completed_replay_folder(path, grid=None):
+    """A folder as a completed replay leaves it (manifest written last), holding map.yaml."""
+    with OutputFolder(path, command="replay") as out:
+        if grid is not None:
+            write_trinary(out.staging / "map.yaml", grid)
+        out.commit()
+    return path
+
+
 def test_replay_folder_and_bad_inputs(tmp_path):
-    write_trinary(tmp_path / "run1" / "map.yaml", base_map())
+    completed_replay_folder(tmp_path / "run1", base_map())
     b = write_trinary(tmp_path / "b.yaml", base_map())
     assert run(tmp_path / "run1", b).exit_code == 0
 
-    (tmp_path / "empty").mkdir()
-    r = run(tmp_path / "empty", b)
+    # a folder whose run did not complete (no manifest) is not read, even with a map.yaml in it
+    write_trinary(tmp_path / "half" / "map.yaml", base_map())
+    for folder in ("half", "empty"):
+        (tmp_path / folder).mkdir(exist_ok=True)
+        r = run(tmp_path / folder, b)
+        assert r.exit_code == 2 and f"A {tmp_path / folder}: not a completed ltmap output" in r.output
+        assert len(r.output.strip().splitlines()) == 1
+    completed_replay_folder(tmp_path / "nomap")
+    r = run(tmp_path / "nomap", b)
     assert r.exit_code == 2 and "no map.yaml" in r.output and "A " in r.output
 
     npz = tmp_path / "state.npz"
@@ -405,7 +422,9 @@ def test_3d_on_state_files_and_folders_equals_3d_on_their_ot(tmp_path):
     for name, keys in (("a", wall), ("b", wall[1:] + [[0, 3, 10], [0, 4, 12]])):
         m = LayeredMap(MapConfig())
         m.seed_long_term(np.array(keys), 1.0)
-        write_snapshot(m, tmp_path / name / "snapshots", None, {})
+        with OutputFolder(tmp_path / name, command="replay") as out:
+            write_snapshot(m, out.staging / "snapshots", None, {})
+            out.commit()
     reps = []
     for a, b in (
         (tmp_path / "a/snapshots/long_term_final.ot", tmp_path / "b/snapshots/long_term_final.ot"),
@@ -460,7 +479,7 @@ def test_bad_map_arguments_name_every_accepted_kind(tmp_path, cmd):
     b = write_trinary(tmp_path / "b.yaml", base_map())
     (tmp_path / "empty").mkdir()
     (tmp_path / "r.json").write_text("{}")
-    for bad, what in ((tmp_path / "empty", "no map.yaml"), (tmp_path / "nope.npz", "no such file"),
+    for bad, what in ((tmp_path / "empty", "not a completed ltmap output"), (tmp_path / "nope.npz", "no such file"),
                       (tmp_path / "r.json", "unknown kind of file")):  # fmt: skip
         args = [str(bad), str(b)] if cmd == "diff" else [str(bad), "--start", "0,0", "--goal", "1,1"]
         r = CliRunner().invoke(cli, [cmd, *args])
@@ -472,7 +491,7 @@ def test_bad_map_arguments_name_every_accepted_kind(tmp_path, cmd):
 
 def test_3d_folder_without_final_state_and_a_yaml(tmp_path):
     b = write_trinary(tmp_path / "b.yaml", base_map())
-    (tmp_path / "empty").mkdir()
+    completed_replay_folder(tmp_path / "empty", base_map())
     r = run(tmp_path / "empty", tmp_path / "empty", "--3d")
     assert r.exit_code == 2 and "empty: folder has no snapshots/state_final.npz" in r.output
     r = run(b, b, "--3d")

@@ -17,6 +17,7 @@ from ltmap_cli.analysis.planner import blocked_grid, inflate, plan_on_grid, plan
 from ltmap_cli.cli import cli
 from ltmap_cli.errors import InputError, NoPathError
 from ltmap_cli.io.mapfile import GridMap
+from ltmap_cli.outputs.folder import OutputFolder
 
 S2 = math.sqrt(2.0)
 RES = 0.05
@@ -236,7 +237,9 @@ def door_map(door_open: bool, second_door: bool = False) -> np.ndarray:
 
 
 def test_cli_door_open_then_closed(tmp_path):
-    write_trinary(tmp_path / "open" / "map.yaml", door_map(True))
+    with OutputFolder(tmp_path / "open", command="replay") as out:  # a folder as a completed replay leaves it
+        write_trinary(out.staging / "map.yaml", door_map(True))
+        out.commit()
     b = write_trinary(tmp_path / "closed.yaml", door_map(False))
     start, goal = xy(10, 30), xy(50, 30)
     r = run(tmp_path / "open", "--start", start, "--goal", goal)

@@ -1,12 +1,13 @@
-"""What `ltmap replay` writes into its output folder: every snapshot time has its three files, and
-the fixed output names are checked before the run (a folder where a file goes, or the reverse)."""
+"""What `ltmap replay` writes into its output folder: every snapshot time has its three files; a
+folder ltmap did not write is refused before the run (replaced with --force); the manifest and the
+summary line name every file written."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from pathlib import Path
 
-import numpy as np
 import open3d as o3d
 import pytest
 from test_replay import assert_one_line_error, run
@@ -14,7 +15,8 @@ from test_replay import assert_one_line_error, run
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import LayeredMap
 from ltmap_cli.io.state import read_state
-from ltmap_cli.outputs.names import replay_output_files, replay_output_folders
+from ltmap_cli.outputs.folder import MANIFEST
+from ltmap_cli.outputs.names import PLOT_FILES
 from ltmap_cli.pipeline.replay import Replay
 
 LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
@@ -60,50 +62,55 @@ def no_replay(monkeypatch):
     monkeypatch.setattr(Replay, "_run", started)
 
 
-@pytest.mark.parametrize("name, extra", [
-    ("replay.mcap", ["--mcap-out"]), ("map.pgm", []), ("long_term.yaml", []), ("report.json", []),
-    ("config.yaml", []), ("events.csv", []), ("plots/map_3d.png", ["--plots"])])  # fmt: skip
-def test_a_folder_at_a_fixed_output_name_is_refused_before_the_run(tmp_path, no_replay, name, extra):
-    out = tmp_path / "out"
-    (out / name).mkdir(parents=True)
-    before = sorted(p.relative_to(out) for p in out.rglob("*"))
-    plots = extra == ["--plots"]
-    r = run(["replay", str(LOG), "-o", str(out), "-q", *[e for e in extra if e != "--plots"]], plots=plots)
-    assert_one_line_error(r, f"{out / name} is a folder", f"writes the file {name}", "choose another output folder")
-    assert sorted(p.relative_to(out) for p in out.rglob("*")) == before  # nothing written, nothing removed
-
-
-@pytest.mark.parametrize("name", ["snapshots", "plots"])
-def test_a_file_where_a_folder_goes_is_refused_before_the_run(tmp_path, no_replay, name):
+@pytest.mark.parametrize("name, make", [("replay.mcap", "dir"), ("map.pgm", "dir"), ("plots", "file"),
+                                        ("notes.txt", "file")])  # fmt: skip
+def test_a_folder_ltmap_did_not_write_is_refused_before_the_run(tmp_path, no_replay, name, make):
     out = tmp_path / "out"
     out.mkdir()
-    (out / name).write_text("mine")
-    r = run(["replay", str(LOG), "-o", str(out), "-q"], plots=True)
-    assert_one_line_error(r, f"{out / name} is a file", f"its folder {name}/", "choose another output folder")
-    assert [p.name for p in out.iterdir()] == [name] and (out / name).read_text() == "mine"
+    (out / name).mkdir() if make == "dir" else (out / name).write_text("mine")
+    r = run(["replay", str(LOG), "-o", str(out), "-q", "--mcap-out"], plots=True)
+    assert_one_line_error(r, f"-o {out}: holds files ltmap did not write ({name})", "--force")
+    assert [p.name for p in out.iterdir()] == [name]  # nothing written, nothing removed
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no staging folder, no lock file
 
 
-def test_names_that_need_their_option_are_free_without_it(tmp_path):
+def test_force_replaces_a_foreign_folder_as_a_whole(tmp_path):
     out = tmp_path / "out"
-    (out / "replay.mcap").mkdir(parents=True)  # without --mcap-out nothing is written there
-    (out / "static.pgm").mkdir()  # without --static neither
-    (out / "plots").write_text("not ours")  # nor here with --no-plots
-    assert run(["replay", str(LOG), "-o", str(out), "-q"]).exit_code == 0
-    assert (out / "replay.mcap").is_dir() and (out / "plots").read_text() == "not ours"
-    assert (out / "map.pgm").is_file()
+    (out / "replay.mcap").mkdir(parents=True)
+    (out / "plots").write_text("not ours")
+    (out / "empty_dir").mkdir()
+    assert run(["replay", str(LOG), "-o", str(out), "-q", "--force"]).exit_code == 0
+    manifest = json.loads((out / MANIFEST).read_text())
+    on_disk = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+    assert on_disk == set(manifest["files"]) | {MANIFEST}
+    assert not (out / "replay.mcap").exists() and not (out / "plots").exists() and not (out / "empty_dir").exists()
 
 
-def test_the_checked_names_are_what_a_run_writes(tmp_path):
+def test_the_manifest_and_the_summary_name_everything_written(tmp_path):
     # with every optional output: the static map (any map_server YAML), replay.mcap and plots
     first = tmp_path / "first"
     assert run(["replay", str(LOG), "-o", str(first), "-q"]).exit_code == 0
     out = tmp_path / "out"
     r = run(["replay", str(LOG), "-o", str(out), "-q", "--static", str(first / "map.yaml"), "--mcap-out"], plots=True)
     assert r.exit_code == 0, r.output
-    files = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file() and p.parent.name != "snapshots"}
-    folders = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_dir()}
-    assert files == set(replay_output_files(static=True, mcap=True, plots=True))
-    assert folders == set(replay_output_folders(plots=True))
-    assert set(replay_output_files(static=False, mcap=False, plots=False)) == {
-        n for n in files if not n.startswith(("static.", "plots/")) and n != "replay.mcap"}
-    assert np.all([(out / n).stat().st_size > 0 for n in files])
+    files = {str(p.relative_to(out)) for p in out.rglob("*") if p.is_file()}
+    manifest = json.loads((out / MANIFEST).read_text())
+    assert files == set(manifest["files"]) | {MANIFEST}
+    maps = {f"{stem}.{ext}" for stem in ("map", "long_term", "static") for ext in ("pgm", "yaml", "png")}
+    snaps = {f"snapshots/{k}_final.{e}" for k, e in (("long_term", "ot"), ("long_term", "ply"), ("state", "npz"))}
+    plots = {f"plots/{f}" for f in PLOT_FILES.values()}
+    assert files == maps | snaps | plots | {"events.csv", "report.json", "config.yaml", "replay.mcap", MANIFEST}
+    for name, info in manifest["files"].items():
+        data = (out / name).read_bytes()
+        assert info == {"size": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+    assert manifest["command"] == "replay" and manifest["logs"] == [str(LOG)]
+    summary = [ln for ln in r.output.splitlines() if ln.startswith("wrote ")]
+    assert summary == [f"wrote {out}/: config.yaml, events.csv, long_term.pgm, long_term.png, long_term.yaml, "
+                       "map.pgm, map.png, map.yaml, replay.mcap, report.json, static.pgm, static.png, static.yaml, "
+                       "plots/ (5 files), snapshots/ (3 files)"]  # fmt: skip
+    # the report and config.yaml name the folder the user gave, not the staging folder
+    report = json.loads((out / "report.json").read_text())
+    assert report["outputs"]["events"] == str(out / "events.csv")
+    assert report["snapshots"][-1]["state"] == str(out / "snapshots" / "state_final.npz")
+    assert f"-o {out} --config {out / 'config.yaml'}" in (out / "config.yaml").read_text().splitlines()[1]
+    assert "ltmap-staging" not in (out / "report.json").read_text()

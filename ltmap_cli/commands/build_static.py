@@ -26,7 +26,8 @@ SVG conventions (see docs/plans.md):
     unless --origin x,y,yaw places it elsewhere.
 
 \b
-Writes into OUTPUT: static.pgm + static.yaml (walls occupied, inside the plan's
+Writes into OUTPUT (replaced as a whole when the build completes; a folder
+ltmap did not write is refused unless --force): static.pgm + static.yaml (walls occupied, inside the plan's
 outline free, outside unknown), static.png, and static_layer.npz (the 3D layer:
 walls extruded to --wall-height) that `ltmap replay --static OUTPUT` loads.
 A map YAML as PLAN is normalized to the same outputs (at its own resolution
@@ -62,6 +63,7 @@ def _positive(ctx, param, value):
     show_default=True,
     help="Output folder.",
 )
+@click.option("--force", is_flag=True, help="Replace the output folder even if ltmap did not write it.")
 @click.option(
     "--resolution",
     type=float,
@@ -116,10 +118,11 @@ def _positive(ctx, param, value):
     help="Refuse maps with more cells than this [default: 2e8, about 3 GB].",
 )
 def build_static(
-    plan: Path, output: Path, resolution, scale, wall_height, wall_thickness, origin, furniture, max_cells
+    plan: Path, output: Path, force: bool, resolution, scale, wall_height, wall_thickness, origin, furniture, max_cells
 ) -> None:
-    from ..io.mapfile import map_file_paths, read_map_yaml, write_map
+    from ..io.mapfile import read_map_yaml, write_map
     from ..io.static_layer import MAP_YAML, write_static_layer
+    from ..outputs.folder import OutputFolder, listing
     from ..static.build import DEFAULT_MAX_CELLS, build_from_map, build_from_plan
     from ..static.svgplan import parse_plan
 
@@ -134,10 +137,12 @@ def build_static(
         parsed = parse_plan(plan, scale, wall_thickness, origin or (0.0, 0.0, 0.0))
         layer, stats = build_from_plan(parsed, resolution or 0.05, wall_height, furniture, max_cells)
         what = f"plan (scale from {stats.scale_source})"
-    # everything is computed before the first file is written; each file is written atomically
-    yaml_path = output / MAP_YAML
-    write_map(yaml_path, layer.grid, png=True)
-    write_static_layer(output, layer)
+    # everything is computed before the first file is written, into a staging folder swapped in whole
+    with OutputFolder(output, command="build-static", force=force) as out:
+        out.refuse_inputs_inside([plan], "PLAN")
+        write_map(out.staging / MAP_YAML, layer.grid, png=True)
+        write_static_layer(out.staging, layer)
+        manifest = out.commit({"plan": str(plan)})
     g = layer.grid
     extra = []
     if stats.furniture:
@@ -145,12 +150,11 @@ def build_static(
             "none": "left out (--furniture none)", "static": "in S", "long-term": "seeding LT"}[stats.furniture_mode])
     if stats.ignored_shapes:
         extra.append(f"{stats.ignored_shapes} shapes outside the named layers ignored")
-    pgm = map_file_paths(yaml_path)[1]
     click.echo(
         f"{output}/: {what}: walls {stats.wall_length_m:.1f} m long (half the wall outline's perimeter), "
         f"{stats.wall_area_m2:.2f} m^2, {stats.wall_cells} wall cells; {stats.doors} doors; "
         f"{g.width} x {g.height} cells = {g.width * g.resolution:.2f} x {g.height * g.resolution:.2f} m "
         f"at {g.resolution:g} m, origin ({g.origin[0]:g}, {g.origin[1]:g}); "
         + ("; ".join(extra) + "; " if extra else "")
-        + f"wrote {pgm.name}, {yaml_path.name}, static.png, static_layer.npz in {time.perf_counter() - t0:.2f} s"
+        + f"wrote {listing(manifest)} in {time.perf_counter() - t0:.2f} s"
     )

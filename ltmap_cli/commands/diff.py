@@ -150,8 +150,12 @@ def diff(
 
     Exit status: 0 same (nothing added or removed after --tolerance), 1 different, 2 error.
     """
+    from ..analysis import KINDS
     from ..errors import InputError
+    from ..outputs.folder import check_completed_input
 
+    for name, p in (("A", a), ("B", b)):  # a folder is read only when a run completed it
+        check_completed_input(p, name, f"give {KINDS} of a completed run", "replay")
     if z_band[1] <= z_band[0]:
         raise InputError(f"--z-band {z_band[0]:g} {z_band[1]:g}: the top must exceed the bottom")
     if png is not None and not three_d:

@@ -63,14 +63,16 @@ def plan(
     The length is measured between cell centres. Exit status: 0 path found, 1 no path, 2 error
     (e.g. start or goal off the map or inside an obstacle).
     """
-    from ..analysis import load_grid
+    from ..analysis import KINDS, load_grid
     from ..analysis.planner import plan_on_grid
+    from ..outputs.folder import check_completed_input
 
     if png is not None:
         from ..io.atomic import check_file_target
 
         check_file_target(png, "--png", "path.png")
 
+    check_completed_input(map_path, "MAP", f"give {KINDS} of a completed run", "replay")
     grid = load_grid(map_path, "map")
     res = plan_on_grid(grid, start, goal, robot_radius=robot_radius, allow_unknown=allow_unknown)
 

@@ -77,11 +77,12 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
 @click.command("replay")
 @click.argument("logs", nargs=-1, type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("ltmap_out"), show_default=True,
-              help="Output folder.")
+              help="Output folder, replaced as a whole when the run completes (a failed run leaves it as it was).")
+@click.option("--force", is_flag=True, help="Replace the output folder even if ltmap did not write it.")
 @click.option("--static", "static", type=click.Path(path_type=Path),
               help="Static map S: a build-static output (folder or static.yaml) or any map_server YAML.")
 @click.option("--resume", type=click.Path(path_type=Path),
-              help="Start LT from an earlier output folder or snapshot (state .npz or .ot).")
+              help="Start LT from an earlier completed output folder or a snapshot (state .npz or .ot).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path), help="Parameters from a YAML file "
               "(the names of config.yaml / --dump-config).")
 @click.option("--dump-config", is_flag=True, help="Print the effective parameters as YAML and exit.")
@@ -109,7 +110,7 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
-def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
+def replay(logs, output, force, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
            depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, mcap_out,
            map_period, no_plots, depth_outlier_filter, overrides, quiet):
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
@@ -151,15 +152,22 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
     if not logs:
         raise click.UsageError("give at least one LOG (a .bag, a ROS 2 bag folder or an .mcap)")
 
-    from ..pipeline.replay import Replay, ReplayRequest  # Replay.run checks the output names before any work
+    from ..outputs.folder import OutputFolder, check_completed_input, listing
+    from ..pipeline.replay import Replay, ReplayRequest
 
     bar = None if quiet else ProgressBar()
-    run = Replay(cfg, ReplayRequest(list(logs), output, static=static, resume=resume), progress=bar)
-    try:
-        report = run.run()
-    finally:
-        if bar is not None:
-            bar.close()
+    # first the output folder (lock, checks, staging): a bad -o must not cost a whole replay
+    check_completed_input(static, "--static", "give its static.yaml, or build it again with ltmap build-static")
+    with OutputFolder(output, command="replay", force=force) as out:
+        out.refuse_inputs_inside(logs, "LOG")
+        out.refuse_inputs_inside([static], "--static")
+        request = ReplayRequest(list(logs), out.staging, static=static, resume=resume, final_dir=out.final)
+        try:
+            report = Replay(cfg, request, progress=bar).run()
+        finally:
+            if bar is not None:
+                bar.close()
+        manifest = out.commit({"logs": [str(p) for p in logs]})
     used = sum(report["frames_used"].values())
     skipped = sum(report["frames_skipped"].values())
     click.echo(
@@ -179,5 +187,5 @@ def replay(logs, output, static, resume, config_file, dump_config, fixed_frame, 
         click.echo(f"ltmap: warning: {plan['warning']}", err=True)
     if report.get("stopped_at"):
         click.echo(f"  log damaged or cut off: {report['stopped_at']}")
-    click.echo(f"wrote {output}/ (map.yaml, long_term.yaml, snapshots/, report.json, config.yaml)")
+    click.echo(f"wrote {output}/: {listing(manifest)}")
 

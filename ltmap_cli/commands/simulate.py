@@ -24,7 +24,9 @@ scenario and seed give a byte-identical log. Topics: /tf (map -> odom ->
 base_link), /tf_static, /odom, /scan, /camera/depth/image_raw and
 /camera/depth/camera_info, /points. The ground truth (every object with its
 geometry, pose, presence intervals and kind; the robot's path) is written
-beside the log as ground_truth.json unless --ground-truth says where.
+beside the log as ground_truth.json unless --ground-truth says where. A log
+file is written under a temporary name and renamed; a ROS 2 bag folder is
+replaced as a whole (a folder ltmap did not write is refused unless --force).
 """
 
 
@@ -51,9 +53,10 @@ beside the log as ground_truth.json unless --ground-truth says where.
     help="Where to write the ground truth (default: ground_truth.json beside the log).",
 )
 @click.option("--seed", type=int, help="Override the scenario's seed.")
+@click.option("--force", is_flag=True, help="Replace a ROS 2 bag folder ltmap did not write.")
 @click.option("-q", "--quiet", is_flag=True, help="No summary on stdout.")
 def simulate(
-    scenario: Path, output: Path, fmt: str | None, ground_truth: Path | None, seed: int | None, quiet: bool
+    scenario: Path, output: Path, fmt: str | None, ground_truth: Path | None, seed: int | None, force: bool, quiet: bool
 ) -> None:
     from ..errors import ConfigError
     from ..sim.scenario import load_scenario
@@ -67,7 +70,7 @@ def simulate(
             raise ConfigError(f"--seed {seed}: must be a non-negative integer")
         sc.seed = seed
     t0 = time.perf_counter()
-    summary = run(sc, output, fmt, ground_truth)
+    summary = run(sc, output, fmt, ground_truth, force=force)
     if not quiet:
         n = sum(summary["messages"].values())
         click.echo(

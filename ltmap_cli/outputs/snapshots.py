@@ -31,6 +31,7 @@ from ..core.layers import LayeredMap
 from ..errors import MapFileError
 from ..io.ply import write_voxels_ply
 from ..io.state import read_state, write_state
+from .folder import OutputFolder
 
 LT_CLIP = 1e-3
 
@@ -148,8 +149,6 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
 
 def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict) -> dict[str, str]:
     """Write long_term_<name>.ot / .ply and state_<name>.npz into ``folder``; return their paths."""
-    from ..io.atomic import write_bytes_atomic
-
     folder.mkdir(parents=True, exist_ok=True)
     name = snapshot_name(t_s)
     thr = lmap.cfg.projection.occupied_thresh
@@ -157,7 +156,7 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     ot_path = folder / f"long_term_{name}.ot"
     keys, lt = long_term_voxels(lmap)
     data = snapshot_ot_bytes(lmap, (keys, lt))
-    write_bytes_atomic(ot_path, data)
+    ot_path.write_bytes(data)  # the folder is a staging folder (outputs.folder): no temporary name needed
     del data
     out["ot"] = str(ot_path)
     occ = lt >= thr
@@ -173,19 +172,18 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
 
 
 def resolve_resume(path: str | Path) -> Path:
-    """The snapshot file a --resume argument names: a state .npz, an .ot, or an output folder."""
+    """The snapshot file a --resume argument names: a state .npz, an .ot, or a completed replay
+    output folder (its manifest names snapshots/state_final.npz, or else its latest state)."""
     p = Path(path)
     if p.is_dir():
-        for cand in (p / "snapshots" / "state_final.npz", p / "state_final.npz"):
-            if cand.is_file():
-                return cand
-        states = sorted(p.glob("snapshots/state_*.npz")) or sorted(p.glob("state_*.npz"))
+        fix = "give a completed ltmap replay output folder, or a snapshot file (.npz or .ot)"
+        manifest = OutputFolder.completed(p, "--resume", command="replay", fix=fix)
+        states = sorted(n for n in manifest["files"] if n.startswith("snapshots/state_") and n.endswith(".npz"))
+        if "snapshots/state_final.npz" in states:
+            return p / "snapshots" / "state_final.npz"
         if states:
-            return states[-1]
-        raise MapFileError(
-            f"--resume {p}: no snapshots/state_final.npz in this folder; give an ltmap replay output "
-            "folder or a snapshot file (.npz or .ot)"
-        )
+            return p / states[-1]
+        raise MapFileError(f"--resume {p}: no snapshots/state_final.npz in this folder; {fix}")
     if not p.is_file():
         raise MapFileError(f"--resume {p}: no such file or folder; give a replay output folder or a snapshot")
     if p.suffix not in (".npz", ".ot"):

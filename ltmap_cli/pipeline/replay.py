@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import json
 import resource
-import shutil
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -26,13 +25,12 @@ import numpy as np
 from ..analysis.planner import plan_path
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
-from ..errors import InputError, TransformError, output_error
+from ..errors import InputError, TransformError
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
-from ..outputs.names import check_replay_outputs
 from ..outputs.snapshots import load_resume
 from .clock import Ticker
 from .executor import OrderedExecutor
@@ -156,20 +154,11 @@ class Replay:
 
     def run(self) -> dict:
         self._t_wall0 = time.perf_counter()
-        out = self.req.out_dir
-        created = not out.exists()
-        try:  # first: a bad -o must not cost a whole replay
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            raise output_error(err, f"the output folder {out}") from None
-        check_replay_outputs(out, self.cfg, static=self.req.static is not None)
         try:
             return self._run()
         except BaseException:
             for s in self.sinks:
                 s.abort()
-            if created:  # a failed run into a new folder leaves nothing behind
-                shutil.rmtree(out, ignore_errors=True)
             raise
         finally:
             if self._compile is not None:
@@ -197,6 +186,7 @@ class Replay:
             resume_info = load_resume(lmap, req.resume)
         tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
         mounts = [tf.add_mount(spec) for spec in cfg.replay.tf]
+        req.out_dir.mkdir(parents=True, exist_ok=True)  # the CLI gives a fresh staging folder (OutputFolder)
         run = RunState(cfg, lmap, req.out_dir, req.shown_dir)
         return run, tf, mounts, static_info, resume_info
 

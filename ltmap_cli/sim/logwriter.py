@@ -6,8 +6,9 @@ integer nanoseconds. Serialization is rosbags' typestore (CDR or ROS 1), so ever
 same bytes a ROS node would send. Nothing in the output depends on the wall clock: the same
 messages give byte-identical files.
 
-The output is atomic: a file is written beside its target under a temporary name and renamed; a
-ROS 2 bag folder is written as a temporary folder and renamed.
+A file (MCAP, ROS 1 bag) is written beside its target under a temporary name and renamed. A ROS 2
+bag folder is written at the path given, which must not exist: ``sim.simulate`` gives a path in an
+``OutputFolder``'s staging folder, swapped in as a whole.
 """
 
 from __future__ import annotations
@@ -107,13 +108,10 @@ class LogWriter:
     def __enter__(self) -> LogWriter:
         target = self.path
         if self.fmt == "ros2":
-            if target.exists() and not (target.is_dir() and (target / "metadata.yaml").is_file()):
-                raise InputError(
-                    f"-o {target}: exists and is not a ROS 2 bag folder; choose another output path"
-                )
+            if target.exists():
+                raise InputError(f"-o {target}: exists; a ROS 2 bag folder is written into a new folder")
             target.parent.mkdir(parents=True, exist_ok=True)
-            self._tmpdir = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
-            self._tmp = self._tmpdir / target.name
+            self._tmpdir = self._tmp = target
         else:
             if target.is_dir():
                 raise InputError(
@@ -165,20 +163,12 @@ class LogWriter:
             return
         try:
             self._close_writer()
-            if self.fmt == "ros2":
-                old = None
-                if self.path.exists():
-                    old = self.path.with_name(f".{self.path.name}.old")
-                    shutil.rmtree(old, ignore_errors=True)
-                    os.replace(self.path, old)
-                os.replace(self._tmp, self.path)
-                if old is not None:
-                    shutil.rmtree(old, ignore_errors=True)
-            else:
+            if self.fmt != "ros2":
                 os.chmod(self._tmp, 0o666 & ~_umask())
                 os.replace(self._tmp, self.path)
-        finally:
+        except BaseException:
             self._cleanup()
+            raise
 
     def _close_writer(self) -> None:
         if self.fmt == "mcap":

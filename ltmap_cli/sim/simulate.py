@@ -16,6 +16,7 @@ a byte-identical log.
 
 from __future__ import annotations
 
+import contextlib
 import heapq
 import json
 import math
@@ -27,6 +28,7 @@ import numpy as np
 
 from ..errors import InputError
 from ..io.atomic import atomic_path
+from ..outputs.folder import OutputFolder, locked_file
 from .logwriter import LogWriter
 from .scenario import Scenario
 from .scene import World, active, door_leaf, door_motion, person_at, robot_pose
@@ -416,31 +418,49 @@ def _check_outputs(out: Path, gt: Path, given: bool) -> None:
         raise InputError(f"{gt_label}: is the log -o {out} or inside it; give another file name")
 
 
+def _lift(inner: Path, folder: Path) -> None:
+    """Move the bag rosbags wrote into ``inner`` up into ``folder`` (its metadata.yaml names its
+    files relative to it, so the bag stays whole)."""
+    for p in inner.iterdir():
+        os.rename(p, folder / p.name)
+    inner.rmdir()
+
+
 def _write_ground_truth(path: Path, sim: Simulator) -> None:
     path.write_bytes((json.dumps(sim.ground_truth(), indent=1) + "\n").encode())
 
 
 def simulate(
-    sc: Scenario, out: str | Path, fmt: str = "mcap", ground_truth: str | Path | None = None, progress=None
+    sc: Scenario, out: str | Path, fmt: str = "mcap", ground_truth: str | Path | None = None, progress=None,
+    force: bool = False,
 ) -> dict:
     """Write the log of ``sc`` to ``out`` (``fmt``: mcap, ros1, ros2) and its ground truth; return
-    a summary (messages per topic, files)."""
+    a summary (messages per topic, files). A file is written under a temporary name and renamed; a
+    ROS 2 bag folder is an ``OutputFolder`` (replaced as a whole; one ltmap did not write is
+    refused unless ``force``)."""
     out = Path(out)
     gt_path = Path(ground_truth) if ground_truth is not None else out.parent / "ground_truth.json"
     _check_outputs(out, gt_path, ground_truth is not None)
     sim = Simulator(sc)
     # the ground truth is staged before the log is renamed into place and renamed after it, so
     # that a failure writing either leaves both targets as they were
-    with atomic_path(gt_path) as gt_tmp, LogWriter(out, fmt) as w:
-        for topic, msgtype, t_ns, fields in sim.messages():
-            w.write(topic, msgtype, t_ns, fields, latching=topic == "/tf_static")
-            if progress is not None:
-                progress((t_ns - _stamp(sc, 0.0)) / NS, sc.duration)
-        counts = dict(w.counts)
-        try:
-            _write_ground_truth(gt_tmp, sim)
-        except OSError as err:  # name the file the user asked for, not the temporary one
-            raise OSError(err.errno, err.strerror, str(gt_path)) from None
+    folder = OutputFolder(out, command="simulate", force=force) if fmt == "ros2" else contextlib.nullcontext()
+    log_lock = contextlib.nullcontext() if fmt == "ros2" else locked_file(out, "simulate")
+    gt_label = "--ground-truth" if ground_truth is not None else "the ground truth"
+    with locked_file(gt_path, "simulate", gt_label), log_lock, atomic_path(gt_path) as gt_tmp, folder:
+        with LogWriter(folder.staging / out.name if fmt == "ros2" else out, fmt) as w:
+            for topic, msgtype, t_ns, fields in sim.messages():
+                w.write(topic, msgtype, t_ns, fields, latching=topic == "/tf_static")
+                if progress is not None:
+                    progress((t_ns - _stamp(sc, 0.0)) / NS, sc.duration)
+            counts = dict(w.counts)
+            try:
+                _write_ground_truth(gt_tmp, sim)
+            except OSError as err:  # name the file the user asked for, not the temporary one
+                raise OSError(err.errno, err.strerror, str(gt_path)) from None
+        if fmt == "ros2":
+            _lift(folder.staging / out.name, folder.staging)
+            folder.commit({"format": fmt, "seed": sc.seed})
     return {
         "log": str(out),
         "format": fmt,
