@@ -192,7 +192,7 @@ def test_a_bag_whose_header_stamps_are_a_year_older_gives_the_same_map(tmp_path)
     assert _shift_ros2_bag(src, shifted, YEAR_NS) > 100
     outs = {}
     for name, log in (("orig", src), ("shifted", shifted)):
-        outs[name] = tmp_path / name
+        outs[name] = tmp_path / f"out_{name}"
         r = subprocess.run([sys.executable, "-m", "ltmap_cli", "replay", str(log), "-o", str(outs[name]), "--no-plots",
                             "-q"], capture_output=True, text=True)  # fmt: skip
         assert r.returncode == 0, r.stderr
