@@ -19,11 +19,13 @@ PLOT_FILES = {name: f"{name}.png" for name in
               ("layer_history", "latency_boxes", "processing_latency", "map_events", "map_3d")}  # fmt: skip
 
 
-def replay_output_files(*, static: bool, mcap: bool, plots: bool) -> list[str]:
+def replay_output_files(*, static: bool, mcap: bool, plots: bool, localize: bool = False) -> list[str]:
     """Paths, relative to the output folder, of the files a replay writes at fixed names."""
     stems = ["map", "long_term"] + (["static"] if static else [])
     names = [f"{stem}{suffix}" for stem in stems for suffix in MAP_SUFFIXES]
     names += ["events.csv", "report.json", "config.yaml"]
+    if localize:
+        names.append("localization.csv")
     if mcap:
         names.append("replay.mcap")
     if plots:
@@ -50,7 +52,8 @@ def check_replay_outputs(out_dir: str | os.PathLike, cfg, static: bool) -> None:
         if p.exists() and not p.is_dir():
             raise OutputError(f"{p} is a file, where ltmap replay writes its folder {name}/; move or remove that "
                               "file, or choose another output folder (-o)")  # fmt: skip
-    for name in replay_output_files(static=static, mcap=bool(cfg.replay.mcap_out), plots=plots):
+    for name in replay_output_files(static=static, mcap=bool(cfg.replay.mcap_out), plots=plots,
+                                    localize=bool(cfg.replay.localize)):
         p = out / name
         if p.is_dir():
             raise OutputError(f"{p} is a folder, where ltmap replay writes the file {name}; move or remove that "

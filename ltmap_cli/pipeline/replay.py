@@ -22,6 +22,7 @@ import queue
 import resource
 import threading
 import time
+import warnings
 from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -33,7 +34,7 @@ from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..core.projection import Projection, project
 from ..core.sensors import depth_to_points, scan_to_points, transform_points
-from ..errors import InputError, OutputError, TransformError, output_error
+from ..errors import InputError, LtmapWarning, OutputError, TransformError, output_error
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.frames import CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
@@ -221,6 +222,9 @@ class Replay:
         tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
         mounts = [tf.add_mount(spec) for spec in cfg.replay.tf]
         self.tf = tf
+        self.localization = None
+        if cfg.replay.localize:  # a pre-pass: map -> odom estimated from the scans (pipeline/localize.py)
+            self._localize(static_layer)
         out = req.out_dir
         if cfg.replay.mcap_out:
             from ..io.mcap_out import ReplayMcapWriter
@@ -269,8 +273,11 @@ class Replay:
 
                 workers = max(1, min(RAY_WORKERS, os.cpu_count() or 1))
                 self._pool = ThreadPoolExecutor(workers, thread_name_prefix="ltmap-rays")
+            self._next_loc = 0
+            self._feed_localization(None)
             try:
                 for topic, log_ns, item in reader:
+                    self._feed_localization(log_ns)
                     if isinstance(item, (TfSample, OdometrySample)):
                         t0 = time.perf_counter()
                         tf.add(item)
@@ -285,6 +292,7 @@ class Replay:
                     ):
                         self._process(*heapq.heappop(self._pending)[2:])
                     self._report_progress(log_ns)
+                self._feed_localization(2**63 - 1)
                 while self._pending:
                     self._process(*heapq.heappop(self._pending)[2:])
                 self._drain(0)
@@ -384,6 +392,10 @@ class Replay:
             "processing_latency_ms": processing,
             "outputs": outputs,
         }
+        if self.localization is not None:
+            write_text_atomic(out / "localization.csv", self.localization.csv_text())
+            outputs["localization"] = str(out / "localization.csv")
+            report["localization"] = self.localization.summary
         write_text_atomic(out / "config.yaml", self._inputs_comment() + dump_config(cfg))
         write_text_atomic(out / "report.json", json.dumps(report, indent=2, default=_json_default) + "\n")
         return report
@@ -438,6 +450,34 @@ class Replay:
         self.mcap.write_tf(start_ns if static else item.stamp_ns,
                            [(norm(item.parent), norm(item.child), item.translation, item.rotation_xyzw)],
                            static=static)  # fmt: skip
+
+    def _localize(self, static_layer) -> None:
+        """Run the localization pre-pass; a log that cannot be aligned is said in one warning
+        and replayed with its recorded poses."""
+        from .localize import localize_logs
+
+        t0 = time.perf_counter()
+        grid = static_layer.grid if static_layer is not None else None
+        self.localization = loc = localize_logs(self.req.logs, self.cfg, grid, self.cfg.replay.tf)
+        self.counts.stage_s["localize"] += time.perf_counter() - t0
+        if loc.child is None:
+            warnings.warn(LtmapWarning(loc.message), stacklevel=2)
+
+    def _feed_localization(self, log_ns: int | None) -> None:
+        """Add the pre-pass's map -> odom samples to the tf buffer as if recorded: each when the
+        log reaches the scan it was estimated from (``None``: the first ones, before the log).
+        Its edge beats a recorded map -> odom (source "localize"); replay.mcap's /tf gets it."""
+        loc = self.localization
+        if loc is None or not loc.samples:
+            return
+        i = self._next_loc
+        while i < len(loc.samples) and (i < 2 if log_ns is None else loc.log_times[i] <= log_ns):
+            s = loc.samples[i]
+            self.tf.add_localized(s)
+            if self.mcap is not None:
+                self.mcap.write_tf(s.stamp_ns, [(s.parent, s.child, s.translation, s.rotation_xyzw)], static=False)
+            i += 1
+        self._next_loc = i
 
     def _warm_up(self) -> None:
         from .warmup import warm_up
