@@ -30,6 +30,7 @@ class LocalizationConfig:
     align_window_s: float = 3.0  # s of the first scans (in odom) that the start alignment uses
     align_yaw_step_deg: float = 1.0  # yaw steps of the start alignment's search
     align_min_score: float = 0.5  # start alignment below this score: "cannot align", recorded poses
+    align_min_margin: float = 0.1  # ... or less than this above a clearly different alignment (ambiguous)
     min_score: float = 0.5  # a scan's match below this score is rejected (the previous correction holds)
     max_jump_m: float = 0.5  # a match that moves the robot more than this from the prediction is rejected
     max_jump_deg: float = 10.0  # ... or turns it more than this
@@ -49,7 +50,7 @@ class LocalizationConfig:
             out.append("replay.localization.min_range must be >= 0 and below max_range")
         if self.align_window_s < 0:
             out.append("replay.localization.align_window_s must be >= 0")
-        for name in ("align_min_score", "min_score"):
+        for name in ("align_min_score", "align_min_margin", "min_score"):
             if not 0 <= getattr(self, name) <= 1:
                 out.append(f"replay.localization.{name} must be in [0, 1]")
         if self.initial_pose and len(self.initial_pose) != 3:

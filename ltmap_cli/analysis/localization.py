@@ -1,7 +1,6 @@
 """2D localization of laser scans: a start alignment against a static map, then scan-to-map
 registration along the log (against the static map plus the map built so far), or scan-matching
-odometry when there is no static map. Pure numpy + scipy (``ndimage``'s distance transform and
-``fft``); no ROS, no files.
+odometry when there is no static map. Pure numpy; no ROS, no files.
 
 Poses are ``(x, y, yaw)`` tuples. A *correction* ``C`` maps the points of one scan, given in a
 *child* frame (``odom`` when odometry places the laser, else the robot's or the laser's own frame),
@@ -20,7 +19,8 @@ within ``inlier_distance`` of a surface.
 The start alignment (``global_align``) is the search ``bench/align_comprobo.py`` did by hand:
 for every yaw in ``align_yaw_step_deg`` steps the best translation of the first scans' points
 (in odom) by FFT cross-correlation with the static map's walls on a coarse grid; the best few
-candidates are refined with ``register`` and scored; below ``align_min_score`` the log cannot be
+candidates are refined with ``register`` and scored; below ``align_min_score``, or less than
+``align_min_margin`` above a clearly different candidate (an ambiguous fit), the log cannot be
 aligned.
 
 ``Tracker`` runs along the log: each scan is matched from a prediction (the previous correction
@@ -165,7 +165,7 @@ class SurfaceField:
                     min_hits: int = 1) -> SurfaceField:
         """A field whose surfaces are the cells holding ``surface_xy`` (N, 2), with exact
         Euclidean distances (``distance_field``)."""
-        lo = surface_xy.min(0) - margin
+        lo = surface_xy.min(0) - margin - resolution / 2  # the first point at a cell centre
         hi = surface_xy.max(0) + margin
         shape = (int(math.ceil((hi[1] - lo[1]) / resolution)), int(math.ceil((hi[0] - lo[0]) / resolution)))
         f = cls(resolution, dmax, lo, shape, min_hits)
@@ -406,14 +406,21 @@ def global_align(pts: np.ndarray, walls_xy: np.ndarray, cfg, field: SurfaceField
               if pose_change(best.pose, m.pose, centre)[0] > 0.5 or pose_change(best.pose, m.pose, centre)[1]
               > math.radians(5)]  # fmt: skip
     runner = max(others) if others else 0.0
-    ok = best.score >= cfg.align_min_score
     x, y, yaw = best.pose
     msg = (f"aligned to the static map: map -> odom x {x:.3f} m, y {y:.3f} m, yaw {math.degrees(yaw):.2f} deg, "
-           f"{100 * best.score:.0f} % of the first scans' points on its walls")
-    if not ok:
+           f"{100 * best.score:.0f} % of the first scans' points on its walls (next best alignment "
+           f"{100 * runner:.0f} %)")
+    ok = False
+    if best.score < cfg.align_min_score:
         msg = (f"cannot align the log to the static map: at best {100 * best.score:.0f} % of the first "
                f"{cfg.align_window_s:g} s of scans lie on its walls (needs {100 * cfg.align_min_score:.0f} %); "
                f"a map of another place? Using the recorded poses")
+    elif best.score - runner < cfg.align_min_margin:
+        msg = (f"cannot align the log to the static map: two different alignments fit about as well "
+               f"({100 * best.score:.0f} % and {100 * runner:.0f} % of the first {cfg.align_window_s:g} s of "
+               f"scans on its walls); a map of another place, or a symmetric one? Using the recorded poses")
+    else:
+        ok = True
     return Alignment(ok, best.pose, best.score, runner, len(pts), time.perf_counter() - t0, msg)
 
 
