@@ -6,8 +6,9 @@ or the laser's own frame) with ``io.transforms.TfBuffer`` at the scan's stamp (a
 ``replay.tf_wait`` s of log time for tf, as the replay does), and runs
 ``analysis.localization``: with a static map, the start alignment then tracking against it and
 the map built so far; without, scan-matching odometry. The result is a list of ``map -> child``
-``TfSample``s at the scans' stamps (each with the log time at which the replay adds it to its tf
-buffer, so that it arrives as a recorded sample would) and one row per scan for
+``TfSample``s at the scans' stamps (each with the log time of its scan's message: the replay adds
+it to its tf buffer when the log reaches that time, as if recorded with the scan, so that frames
+between two scans find the correction after them too) and one row per scan for
 ``localization.csv``. A recorded ``map -> ...`` edge is not read: the estimate replaces it.
 """
 
@@ -27,8 +28,8 @@ from ..io.frames import OdometrySample, ScanFrame, TfSample
 from ..io.logs import open_logs
 from ..io.mapfile import GridMap
 from ..io.transforms import TfBuffer, norm, parse_mount
+from .replay import MAX_PENDING, NS
 
-NS = 1_000_000_000
 HOLD_S = 1.0  # s: the first and last corrections also hold this long before and after the scans
 CSV_HEADER = "stamp_ns,log_time_s,x,y,yaw,robot_x,robot_y,score,accepted"
 
@@ -72,7 +73,7 @@ def _scan_points(item: ScanFrame, T: np.ndarray, lc) -> np.ndarray:
 
 def localize_logs(logs, cfg, static_grid: GridMap | None, tf_mounts=()) -> LocalizationResult:
     """Run the pre-pass over ``logs`` (paths, or an open ``LogSet``). ``cfg``: the run's Config
-    (``replay.localization``, topics, ``tf_wait``, ``fixed_frame``); ``static_grid``: the static
+    (``replay.localization``, topics, ``tf_wait``); ``static_grid``: the static
     map S (any occupancy ``GridMap``) or None; ``tf_mounts``: the ``--tf`` specs."""
     if isinstance(logs, (str, Path, list, tuple)):
         with open_logs(logs, allow_truncated=cfg.replay.allow_truncated) as opened:
@@ -83,7 +84,7 @@ def localize_logs(logs, cfg, static_grid: GridMap | None, tf_mounts=()) -> Local
 def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
     t_wall = time.perf_counter()
     lc = cfg.replay.localization
-    frame = norm(cfg.replay.fixed_frame) if cfg.replay.fixed_frame else "map"
+    frame = "map"
     sel = logs.select(scan_topics=cfg.replay.scan_topics, cloud_topics=cfg.replay.cloud_topics,
                       depth_topics=cfg.replay.depth_topics)  # fmt: skip
     sel.clouds, sel.depths = [], {}
@@ -100,7 +101,7 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
         static_field = SurfaceField.from_points(walls, lc.resolution, lc.surface_distance, min_hits=lc.map_min_hits)
 
     res = LocalizationResult(frame, None)
-    state: dict = {"child": None, "odometry": None, "tracker": None, "window": [], "t_first": None,
+    state: dict = {"child": None, "laser": None, "odometry": None, "tracker": None, "window": [], "t_first": None,
                    "failed": False, "skipped": 0, "match_s": 0.0}  # fmt: skip
     pending: list = []
     seq = 0
@@ -111,7 +112,7 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
             chain = [laser]
             while chain[-1] in tf.edges and tf.edges[chain[-1]].parent != chain[-1]:
                 chain.append(tf.edges[chain[-1]].parent)
-            state["child"] = chain[-1]
+            state["child"], state["laser"] = chain[-1], laser
             state["odometry"] = any(not tf.edges[c].timeless for c in chain[:-1])
         T, _ = tf.try_lookup(state["child"], laser, item.stamp_ns)
         if T is None:
@@ -158,12 +159,11 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
         robot = apply(st.correction, sensor.reshape(1, 2))[0]
         res.rows.append((stamp, (stamp - start_ns) / NS, x, y, yaw, float(robot[0]), float(robot[1]), st.score,
                          st.accepted))  # fmt: skip
-        z = lc.sensor_height if state["child"] == laser_frame[0] and not state["odometry"] else 0.0
+        z = lc.sensor_height if state["child"] == state["laser"] else 0.0  # no tf places the laser
         q = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
         res.samples.append(TfSample(stamp, frame, state["child"], (x, y, z), q))
         res.log_times.append(log_ns)
 
-    laser_frame = [None]
     for _topic, log_ns, item in logs.messages(sel, fast=True):
         if state["failed"]:
             break
@@ -173,13 +173,11 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
         elif isinstance(item, ScanFrame):
             heapq.heappush(pending, (item.stamp_ns, seq, log_ns, item))
             seq += 1
-        while pending and (pending[0][0] <= log_ns - wait_ns or len(pending) > 200):
+        while pending and (pending[0][0] <= log_ns - wait_ns or len(pending) > MAX_PENDING):
             _, _, ln, it = heapq.heappop(pending)
-            laser_frame[0] = laser_frame[0] or norm(it.frame_id)
-            place(max(ln, log_ns), it)
+            place(ln, it)
     while pending and not state["failed"]:
         _, _, ln, it = heapq.heappop(pending)
-        laser_frame[0] = laser_frame[0] or norm(it.frame_id)
         place(ln, it)
     if state["tracker"] is None and not state["failed"] and state["window"]:
         start()  # a log shorter than the alignment window
@@ -219,8 +217,12 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
     }
     if al is not None and not al.found:
         res.message = al.message
+    elif not sel.scans:
+        res.message = ("cannot localize: the log has no LaserScan topic (--localize matches laser scans); "
+                       "using the recorded poses")
     elif tracker is None:
-        res.message = "cannot localize: no scan could be placed in tf; using the recorded poses"
+        res.message = (f"cannot localize: none of the {state['skipped']} scans could be placed in tf, or each had "
+                       f"fewer than 10 returns; using the recorded poses")
     else:
         head = al.message if al is not None else (
             f"scan matching without a static map: poses of {res.child} in {frame}")
