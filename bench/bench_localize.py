@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ltmap_cli.analysis.map_quality import dilate, fraction_on_walls, raster, wall_distance, wall_thickness
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import LayeredMap
 from ltmap_cli.io.mapfile import read_map_yaml
@@ -79,68 +80,6 @@ def lt_columns(out: Path) -> np.ndarray:
     m.load_state_arrays(arrays)
     keys = m.occupied_keys("LT")
     return (keys[:, :2] + 0.5) * m.resolution
-
-
-def dilate(mask: np.ndarray, n: int) -> np.ndarray:
-    out = mask.copy()
-    for dy in range(-n, n + 1):
-        for dx in range(-n, n + 1):
-            out |= np.roll(np.roll(mask, dy, 0), dx, 1)
-    return out
-
-
-def on_walls(xy: np.ndarray, grid, cells: int = 2) -> float:
-    occ = grid.data == 100
-    near = dilate(occ, cells)
-    j = np.floor((xy - np.array(grid.origin[:2])) / grid.resolution).astype(int)
-    ok = (j[:, 0] >= 0) & (j[:, 0] < occ.shape[1]) & (j[:, 1] >= 0) & (j[:, 1] < occ.shape[0])
-    return float(near[j[ok, 1], j[ok, 0]].sum()) / max(len(xy), 1)
-
-
-def wall_distance(xy: np.ndarray, grid) -> np.ndarray:
-    occ = np.argwhere(grid.data == 100)
-    walls = np.stack([grid.origin[0] + (occ[:, 1] + 0.5) * grid.resolution,
-                      grid.origin[1] + (occ[:, 0] + 0.5) * grid.resolution], axis=1)  # fmt: skip
-    return np.array([np.min(np.hypot(*(walls - p).T)) for p in xy])
-
-
-def raster(xy: np.ndarray, res: float) -> np.ndarray:
-    """bool grid (row = y) holding the points (N, 2)."""
-    lo = xy.min(0) - 1.0
-    ij = np.round((xy - lo) / res).astype(int)
-    g = np.zeros(tuple(ij.max(0)[::-1] + 2), bool)
-    g[ij[:, 1], ij[:, 0]] = True
-    return g
-
-
-def wall_thickness(occ: np.ndarray, res: float, band: float = 0.5) -> dict:
-    """How thick the walls of an occupancy grid (bool, row = y) are. At every occupied cell
-    (a sample of at most 4000) whose occupied neighbours within 0.5 m lie along a line (the
-    principal axis of their spread at least 6x the other: a straight wall, not a corner), count
-    the occupied cells on the line through it along the other axis (the wall's normal), within
-    +-``band`` m, times the cell size. A wall seen sharply is one or two cells thick; a wall
-    smeared by pose errors is as thick as the smear. Median and 90th percentile, metres."""
-    pts = np.argwhere(occ).astype(float)
-    r = int(round(0.5 / res))
-    nb = int(round(band / res))
-    th = []
-    for p in pts[:: max(1, len(pts) // 4000)]:
-        near = pts[np.max(np.abs(pts - p), axis=1) <= r]
-        if len(near) < 8:
-            continue
-        w, v = np.linalg.eigh(np.cov((near - p).T))
-        if w[1] < 6 * max(w[0], 1e-9):  # not a clear straight wall here
-            continue
-        n = v[:, 0]  # the normal (row, col)
-        steps = np.arange(-nb, nb + 1)
-        rr = np.round(p[0] + steps * n[0]).astype(int)
-        cc = np.round(p[1] + steps * n[1]).astype(int)
-        ok = (rr >= 0) & (rr < occ.shape[0]) & (cc >= 0) & (cc < occ.shape[1])
-        th.append(int(occ[rr[ok], cc[ok]].sum()) * res)
-    th = np.array(th)
-    return {"cells": int(occ.sum()), "walls_measured": len(th),
-            "median_m": round(float(np.median(th)), 3) if len(th) else None,
-            "p90_m": round(float(np.percentile(th, 90)), 3) if len(th) else None}
 
 
 def first_pose(log: Path, mount: str) -> list[float]:
@@ -235,7 +174,7 @@ def main() -> None:
                 cols = o_columns(tmp / name)
                 lt = lt_columns(tmp / name)
                 d = wall_distance(lt, grid) if len(lt) else np.array([])
-                print(f"  {name}: {len(cols)} O columns, {100 * on_walls(cols, grid):.1f} % within 2 cells of a "
+                print(f"  {name}: {len(cols)} O columns, {100 * fraction_on_walls(cols, grid):.1f} % within 2 cells of a "
                       f"published wall; {len(lt)} long-term voxels, {int((d <= 0.1).sum())} within 0.1 m of a wall"
                       f" (distances {np.round(np.sort(d), 2).tolist()})")
         if "pioneer" in only or "scan-only" in only:

