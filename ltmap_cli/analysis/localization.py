@@ -452,6 +452,7 @@ class Tracker:
     scores: list = dc_field(default_factory=list)
     _prev: tuple | None = None  # (stamp ns, correction) of the scan before the last
     _last: tuple | None = None  # (stamp ns, correction) of the last scan
+    _started: bool = False  # the field has a surface to match against
 
     def __post_init__(self):
         c = self.cfg
@@ -479,8 +480,9 @@ class Tracker:
         """One scan: points (N, 2) and the laser's position (2,) in the child frame."""
         c = self.cfg
         pred = self._predict(stamp_ns)
-        bootstrap = not self.field.surface.any()
-        if bootstrap:  # nothing to match against yet: this scan starts the map
+        if not self._started:
+            self._started = bool(self.field.surface.any())
+        if not self._started:  # nothing to match against yet: this scan starts the map
             out = Step(pred, float("nan"), True, "")
             self.field.add_hits(apply(pred, pts), weight=c.map_min_hits)
         else:

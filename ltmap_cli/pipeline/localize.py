@@ -85,8 +85,9 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
     t_wall = time.perf_counter()
     lc = cfg.replay.localization
     frame = "map"
-    sel = logs.select(scan_topics=cfg.replay.scan_topics, cloud_topics=cfg.replay.cloud_topics,
-                      depth_topics=cfg.replay.depth_topics)  # fmt: skip
+    # the laser scans (those named with --scan-topic, else all), also when the map is made from
+    # depth or clouds only (--depth-topic / --cloud-topic): they are placed with the estimate
+    sel = logs.select(scan_topics=cfg.replay.scan_topics, require_sensor=False)
     sel.clouds, sel.depths = [], {}
     tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
     for spec in tf_mounts:
