@@ -40,7 +40,8 @@ import numpy as np
 
 Pose = tuple[float, float, float]
 
-COARSE = 0.2  # m: cell of the start alignment's correlation grid
+COARSE = 0.2  # m: cell of the start alignment's correlation grid (coarser for large maps) ...
+COARSE_CELLS = 600  # ... at most this many cells across the static map
 CANDIDATES = 6  # start alignment: correlation peaks refined
 
 
@@ -152,7 +153,7 @@ class SurfaceField:
         self.origin = np.array(origin, dtype=np.float64)
         self.dist = np.full(shape, self.dmax, dtype=np.float32)
         self.surface = np.zeros(shape, dtype=bool)
-        self.hits = np.zeros(shape, dtype=np.int32)
+        self.hits = np.zeros(shape, dtype=np.int16)  # saturates: only min_hits matters
         self.locked = np.zeros(shape, dtype=bool)  # cells where hits make no surface (near a static wall)
         k = int(math.ceil(self.dmax / self.res))
         di, dj = np.mgrid[-k:k + 1, -k:k + 1]
@@ -207,7 +208,7 @@ class SurfaceField:
         self.ensure(xy)
         ij = np.unique(self.cells(xy), axis=0)
         r, c = ij[:, 0], ij[:, 1]
-        self.hits[r, c] += weight
+        self.hits[r, c] = np.minimum(self.hits[r, c].astype(np.int32) + weight, 30000)
         new = (self.hits[r, c] >= self.min_hits) & ~self.surface[r, c] & ~self.locked[r, c]
         r, c = r[new], c[new]
         if len(r) == 0:
@@ -355,26 +356,27 @@ def global_align(pts: np.ndarray, walls_xy: np.ndarray, cfg, field: SurfaceField
     if field is None:
         field = SurfaceField.from_points(walls_xy, cfg.resolution, cfg.surface_distance)
     # a wide field for refining the coarse candidates: they are off by up to a coarse cell
-    wide = SurfaceField.from_points(walls_xy, cfg.resolution, max(3 * COARSE, cfg.surface_distance))
+    coarse = max(COARSE, float(np.max(walls_xy.max(0) - walls_xy.min(0))) / COARSE_CELLS)
+    wide = SurfaceField.from_points(walls_xy, max(cfg.resolution, coarse / 4), max(3 * coarse, cfg.surface_distance))
     centre = pts.mean(0)
     local = pts - centre
-    radius = float(np.max(np.hypot(local[:, 0], local[:, 1]))) + COARSE
-    lo = walls_xy.min(0) - radius - COARSE
-    hi = walls_xy.max(0) + radius + COARSE
-    shape = (int(math.ceil((hi[1] - lo[1]) / COARSE)) + 1, int(math.ceil((hi[0] - lo[0]) / COARSE)) + 1)
+    radius = float(np.max(np.hypot(local[:, 0], local[:, 1]))) + coarse
+    lo = walls_xy.min(0) - radius - coarse
+    hi = walls_xy.max(0) + radius + coarse
+    shape = (int(math.ceil((hi[1] - lo[1]) / coarse)) + 1, int(math.ceil((hi[0] - lo[0]) / coarse)) + 1)
     target = np.zeros(shape, dtype=np.float32)
-    ij = np.floor((walls_xy - lo) / COARSE).astype(np.int64)
+    ij = np.floor((walls_xy - lo) / coarse).astype(np.int64)
     target[ij[:, 1], ij[:, 0]] = 1.0
     target = _dilate(target > 0).astype(np.float32)
     shape = (_fast_len(shape[0]), _fast_len(shape[1]))
     target = np.pad(target, ((0, shape[0] - target.shape[0]), (0, shape[1] - target.shape[1])))
     spec = np.fft.rfft2(target)
-    n_r = int(math.ceil(2 * radius / COARSE)) + 1
+    n_r = int(math.ceil(2 * radius / coarse)) + 1
     found: list[tuple[float, float, float, float]] = []  # (corr score, yaw, x, y)
     for yaw in np.radians(np.arange(0.0, 360.0, cfg.align_yaw_step_deg)):
         c, s = math.cos(yaw), math.sin(yaw)
         rot = np.stack([c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1]], axis=1)
-        jj = np.floor((rot + radius) / COARSE).astype(np.int64)
+        jj = np.floor((rot + radius) / coarse).astype(np.int64)
         img = np.zeros((n_r, n_r), dtype=np.float32)
         img[jj[:, 1], jj[:, 0]] = 1.0
         npts = float(img.sum())
@@ -383,8 +385,8 @@ def global_align(pts: np.ndarray, walls_xy: np.ndarray, cfg, field: SurfaceField
         flat = np.argpartition(corr.ravel(), -3)[-3:]
         for k in flat:
             dy, dx = divmod(int(k), shape[1])
-            x = lo[0] + dx * COARSE + radius - centre[0] * c + centre[1] * s
-            y = lo[1] + dy * COARSE + radius - centre[0] * s - centre[1] * c
+            x = lo[0] + dx * coarse + radius - centre[0] * c + centre[1] * s
+            y = lo[1] + dy * coarse + radius - centre[0] * s - centre[1] * c
             # the rotation about the origin that the coarse image used: map = R(yaw) p + (x, y)
             found.append((float(corr.ravel()[k]) / npts, float(yaw), float(x), float(y)))
     found.sort(key=lambda f: -f[0])
