@@ -12,8 +12,9 @@ with ``p_target = T @ p_source`` (tf2's ``lookupTransform(target, source, time)`
   ``/tf_static`` hours before the log.
 - Frame names are normalized: ``/laser`` and ``laser`` are one frame.
 - Each edge has one source. The estimate of ``replay --localize`` beats a user mount (``--tf``),
-  which beats /tf and /tf_static, which beat nav_msgs/Odometry; between /tf and /tf_static the first wins. Samples from a weaker source are
-  ignored (counted in ``ignored``), so odometry that duplicates /tf does not fight it, in
+  which beats /tf and /tf_static, which beat nav_msgs/Odometry; between /tf and /tf_static the
+  first wins. Samples from a weaker source are ignored (counted in ``ignored``), so odometry that
+  duplicates /tf does not fight it, and a recorded map -> odom does not fight the estimate, in
   whichever order they arrive.
 - Memory is bounded: samples older than ``window_ns`` before an edge's newest sample are dropped.
 - A failed lookup raises ``LookupFailure`` (a ``TransformError``) whose ``reason`` names the
