@@ -473,3 +473,20 @@ def test_pioneer_scans_alone_give_the_walls_of_the_full_odometry_run(tmp_path):
                                  "--json"])  # fmt: skip
     assert d.exit_code in (0, 1), d.output
     assert json.loads(d.output)["iou"] >= 0.8  # measured 0.83
+
+
+def test_a_log_without_laser_scans_says_it_cannot_localize_and_replays_as_recorded(tmp_path):
+    rng = np.random.default_rng(23)
+    msgs = [tf(0, [("base_link", "lidar", (0.0, 0.0, 0.3))], static=True)]
+    for k, p in enumerate(path(10)):
+        t = 1_000_000_000 + k * 200_000_000
+        msgs.append(odometry("/odom", t, "odom", "base_link", (p[0], p[1], 0.0), yaw_quat(p[2])))
+        xy = laser_points(cast(p, noise=0.005, rng=rng))
+        msgs.append(cloud("/cloud", t, np.c_[xy, np.zeros(len(xy))], frame_id="lidar"))
+    log = write_log(tmp_path / "log.bag", "ros1", msgs)
+    r = run(["replay", str(log), "--localize", "-o", str(tmp_path / "out"), "-q", "--no-plots"])
+    assert r.exit_code == 0, r.output
+    assert "ltmap: warning: cannot localize: the log has no LaserScan topic" in r.output
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())
+    assert rep["fixed_frame"] == "odom" and rep["frames_used"] == {"/cloud": 10}
+    assert rep["localization"]["child_frame"] is None
