@@ -262,14 +262,12 @@ class Match:
 
 
 def register(field: SurfaceField, pts: np.ndarray, init: Pose, inlier: float, iterations: int = 10,
-             max_step: tuple[float, float] = (0.1, math.radians(3.0)), stop: tuple[float, float] = (2e-3, 2e-4),
-             damping: float = 1e-2, trim: float | None = None) -> Match:
+             max_step: tuple[float, float] = (0.1, math.radians(3.0)), trim: float | None = None) -> Match:
     """Fit points (N, 2, child frame) to the field's surfaces from ``init`` (child -> map) by
     Gauss-Newton on their distances (points at or beyond ``dmax`` left out), each step limited to
-    ``max_step`` (m, rad) and damped (``damping`` x the points) in directions the points do not
-    constrain (a corridor's length), which then keep ``init``. Stops when a step is below
-    ``stop`` (m, rad). ``trim``: only points nearer than this to a surface pull (default: the
-    field's ``dmax``)."""
+    ``max_step`` (m, rad) and damped in directions the points do not constrain (a corridor's
+    length), which then keep ``init``; it stops at a step below 2 mm and 0.01 degree. ``trim``:
+    only points nearer than this to a surface pull (default: the field's ``dmax``)."""
     pose = init
     it = 0
     for it in range(1, iterations + 1):  # noqa: B007 - reported
@@ -286,7 +284,7 @@ def register(field: SurfaceField, pts: np.ndarray, init: Pose, inlier: float, it
         J[:, 2] = -gw[:, 0] * (qw[:, 1] - m[1]) + gw[:, 1] * (qw[:, 0] - m[0])
         H = J.T @ J
         spread = float(np.mean(np.sum((qw - m) ** 2, axis=1))) + 1e-6
-        H += np.diag([damping * n, damping * n, damping * n * spread])
+        H += np.diag([1e-2 * n, 1e-2 * n, 1e-2 * n * spread])
         delta = -np.linalg.solve(H, J.T @ r)
         t = math.hypot(delta[0], delta[1])
         if t > max_step[0]:
@@ -296,7 +294,7 @@ def register(field: SurfaceField, pts: np.ndarray, init: Pose, inlier: float, it
         c, s = math.cos(delta[2]), math.sin(delta[2])
         step = (m[0] + delta[0] - (c * m[0] - s * m[1]), m[1] + delta[1] - (s * m[0] + c * m[1]), float(delta[2]))
         pose = compose(step, pose)
-        if t < stop[0] and abs(delta[2]) < stop[1]:
+        if t < 2e-3 and abs(delta[2]) < 2e-4:
             break
     q = apply(pose, pts)
     d, _, _ = field.sample(q)
@@ -403,7 +401,6 @@ def global_align(pts: np.ndarray, walls_xy: np.ndarray, cfg, field: SurfaceField
     results = []
     for _, yaw, x, y in picked:
         m = register(wide, pts, (x, y, yaw), cfg.inlier_distance, iterations=30)
-        # to convergence: the start pose holds until tracking moves it, so no early stop here
         m = register(field, pts, m.pose, cfg.inlier_distance, iterations=30)
         # then only the points on walls pull: clutter near the walls does not drag the fit
         m = register(field, pts, m.pose, cfg.inlier_distance, iterations=30, trim=cfg.inlier_distance)
