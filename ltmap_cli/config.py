@@ -19,6 +19,48 @@ from .errors import ConfigError
 
 
 @dataclass
+class LocalizationConfig:
+    """``ltmap replay --localize`` (analysis/localization.py, docs/localization.md)."""
+
+    resolution: float = 0.05  # m: the matching grid (distance field) cell
+    min_range: float = 0.2  # m: nearer returns (the robot itself) are not matched
+    max_range: float = 10.0  # m: farther returns are not matched
+    surface_distance: float = 0.3  # m: a point farther than this from any surface is an outlier
+    inlier_distance: float = 0.1  # m: a point this close to a surface counts for the match score
+    align_window_s: float = 3.0  # s of the first scans (in odom) that the start alignment uses
+    align_yaw_step_deg: float = 1.0  # yaw steps of the start alignment's search
+    align_min_score: float = 0.5  # start alignment below this score: "cannot align", recorded poses
+    align_min_margin: float = 0.1  # ... or less than this above a clearly different alignment (ambiguous)
+    min_score: float = 0.5  # a scan's match below this score is rejected (the previous correction holds)
+    max_jump_m: float = 0.5  # a match that moves the robot more than this from the prediction is rejected
+    max_jump_deg: float = 10.0  # ... or turns it more than this
+    max_step_m: float = 0.2  # the correction moves the laser at most this much per scan (no jumps that tear the map)
+    max_step_deg: float = 4.0  # ... and turns it at most this much per scan
+    map_min_hits: int = 2  # a cell of the map built so far is a surface after this many scans hit it
+    sensor_height: float = 0.2  # m: z of a laser that no tf places (a scan-only log without --tf)
+    initial_pose: list[float] = field(default_factory=list)  # [x, y, yaw]: the first correction without --static
+
+    def validate(self) -> list[str]:
+        out = []
+        for name in ("resolution", "max_range", "surface_distance", "inlier_distance", "align_yaw_step_deg",
+                     "max_jump_m", "max_jump_deg", "max_step_m", "max_step_deg"):
+            if getattr(self, name) <= 0:
+                out.append(f"replay.localization.{name} must be > 0")
+        if self.min_range < 0 or self.min_range >= self.max_range:
+            out.append("replay.localization.min_range must be >= 0 and below max_range")
+        if self.align_window_s < 0:
+            out.append("replay.localization.align_window_s must be >= 0")
+        for name in ("align_min_score", "align_min_margin", "min_score"):
+            if not 0 <= getattr(self, name) <= 1:
+                out.append(f"replay.localization.{name} must be in [0, 1]")
+        if self.initial_pose and len(self.initial_pose) != 3:
+            out.append(f"replay.localization.initial_pose must be [x, y, yaw], got {self.initial_pose}")
+        if self.map_min_hits < 1:
+            out.append("replay.localization.map_min_hits must be >= 1")
+        return out
+
+
+@dataclass
 class ReplayConfig:
     fixed_frame: str = ""  # empty: `map` when the log has it, else `odom`
     snapshot_every: float = 60.0  # s of log time
@@ -44,6 +86,8 @@ class ReplayConfig:
     depth_outlier_filter: bool = False  # drop flying pixels at depth jumps (open3d radius outlier removal)
     depth_outlier_radius: float = 0.02  # m: a jump pixel needs ...
     depth_outlier_min_neighbors: int = 3  # ... this many other points within the radius to stay
+    localize: bool = False  # --localize: correct map -> odom by scan matching (against --static if given)
+    localization: LocalizationConfig = field(default_factory=LocalizationConfig)
 
 
 @dataclass
@@ -77,6 +121,7 @@ class Config:
             problems.append("replay.robot_radius must be >= 0")
         if self.replay.depth_outlier_radius <= 0:
             problems.append("replay.depth_outlier_radius must be > 0")
+        problems += self.replay.localization.validate()
         if self.replay.depth_outlier_min_neighbors < 1:
             problems.append("replay.depth_outlier_min_neighbors must be >= 1")
         if problems:

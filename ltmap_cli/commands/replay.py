@@ -107,12 +107,15 @@ def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
 @click.option("--no-plots", is_flag=True, help="Skip OUT/plots/*.png.")
 @click.option("--depth-outlier-filter", is_flag=True, help="Drop flying pixels at depth edges before integrating "
               "(open3d radius outlier removal; radius and neighbours: replay.depth_outlier_*).")
+@click.option("--localize", is_flag=True, help="Estimate map -> odom from the scans: aligned to --static and "
+              "tracked along the log, or scan-matching odometry without --static (a log with only /scan). "
+              "Writes OUT/localization.csv. Parameters: replay.localization.*.")
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def replay(logs, output, force, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
            depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, mcap_out,
-           map_period, no_plots, depth_outlier_filter, overrides, quiet):
+           map_period, no_plots, depth_outlier_filter, localize, overrides, quiet):
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
     layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
     (OctoMap .ot, .ply, exact state), report.json and config.yaml into the output folder."""
@@ -131,6 +134,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
         "replay.mcap_out": True if mcap_out else None,
         "replay.plots": False if no_plots else None,
         "replay.depth_outlier_filter": True if depth_outlier_filter else None,
+        "replay.localize": True if localize else None,
         "replay.plan_goal": _xy(plan_goal, "--plan-goal") if plan_goal is not None else None,
     }
     for key, value in flags.items():
@@ -176,6 +180,9 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
         f"{report['mapping_speed_vs_real_time']}x): {used} frames used, {skipped} skipped, "
         f"{report['voxels']['long_term_occupied']} long-term voxels"
     )
+    loc = report.get("localization")
+    if loc is not None and loc.get("child_frame"):
+        click.echo(f"  localization: {loc['message']}")
     for reason, n in sorted(report["frames_skipped"].items(), key=lambda kv: -kv[1]):
         click.echo(f"  skipped {n} x: {reason}")
     for topic, why in sorted((report.get("topics_not_used") or {}).items()):

@@ -11,9 +11,10 @@ with ``p_target = T @ p_source`` (tf2's ``lookupTransform(target, source, time)`
 - ``/tf_static`` samples (``static=True``) and user mounts are timeless: real logs stamp
   ``/tf_static`` hours before the log.
 - Frame names are normalized: ``/laser`` and ``laser`` are one frame.
-- Each edge has one source. A user mount (``--tf``) beats /tf and /tf_static, which beat
-  nav_msgs/Odometry; between /tf and /tf_static the first wins. Samples from a weaker source are
-  ignored (counted in ``ignored``), so odometry that duplicates /tf does not fight it, in
+- Each edge has one source. The estimate of ``replay --localize`` beats a user mount (``--tf``),
+  which beats /tf and /tf_static, which beat nav_msgs/Odometry; between /tf and /tf_static the
+  first wins. Samples from a weaker source are ignored (counted in ``ignored``), so odometry that
+  duplicates /tf does not fight it, and a recorded map -> odom does not fight the estimate, in
   whichever order they arrive.
 - Memory is bounded: samples older than ``window_ns`` before an edge's newest sample are dropped.
 - A failed lookup raises ``LookupFailure`` (a ``TransformError``) whose ``reason`` names the
@@ -116,8 +117,9 @@ def parse_mount(spec: str) -> TfSample:
     return TfSample(0, parent, child, (vals[0], vals[1], vals[2]), rpy_to_quat(*vals[3:]), static=True)
 
 
-# which source owns an edge that several provide: a user mount, then tf, then odometry
-_PRIORITY = {"mount": 3, "tf": 2, "static": 2, "odom": 1}
+# which source owns an edge that several provide: the estimate of ``replay --localize``, a user
+# mount, then tf, then odometry
+_PRIORITY = {"localize": 4, "mount": 3, "tf": 2, "static": 2, "odom": 1}
 
 
 @dataclass
@@ -173,6 +175,12 @@ class TfBuffer:
         self._edge_m.pop(s.child, None)
         self._add(s.parent, s.child, 0, s.translation, s.rotation_xyzw, "mount")
         return s
+
+    def add_localized(self, sample: TfSample) -> None:
+        """Add a sample of an edge estimated by ``replay --localize`` (``map -> odom``): it beats
+        every recorded source of that edge (a recorded ``map -> odom`` is ignored)."""
+        self._add(norm(sample.parent), norm(sample.child), sample.stamp_ns, sample.translation,
+                  sample.rotation_xyzw, "localize")
 
     def _add(self, parent: str, child: str, stamp: int, t, q, source: str) -> None:
         if parent == child:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import resource
 import time
+import warnings
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -25,7 +26,7 @@ import numpy as np
 from ..analysis.planner import plan_path
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
-from ..errors import InputError, TransformError
+from ..errors import InputError, LtmapWarning, TransformError
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.logs import open_logs
@@ -34,6 +35,7 @@ from ..io.transforms import TfBuffer
 from ..outputs.snapshots import load_resume
 from .clock import Ticker
 from .executor import OrderedExecutor
+from .localize import localize_logs
 from .rays import CastFrame, FrameCaster
 from .reader import open_reader
 from .report import Report
@@ -41,6 +43,7 @@ from .scheduler import Placed, Scheduler, Skipped, TfSeen
 from .sinks import (
     EventsSink,
     FrameDone,
+    LocalizationSink,
     MapsSink,
     McapSink,
     MetricsSink,
@@ -147,6 +150,8 @@ class Replay:
         self.sinks: list[Sink] = []
         self._last_progress = 0.0
         self._compile: BackgroundCompile | None = None
+        self.localization = None  # the --localize pre-pass's result
+        self._next_loc = 0
         self._warm_depth: set = set()  # (dtype, contiguous) of the raw depth images warmed up
         self._done_s = 0.0  # log time done, for the progress of the phases after the log
         self.log_total_s = 0.0
@@ -186,6 +191,12 @@ class Replay:
             resume_info = load_resume(lmap, req.resume)
         tf = TfBuffer(tolerance_ns=int(cfg.replay.tf_tolerance * NS))
         mounts = [tf.add_mount(spec) for spec in cfg.replay.tf]
+        if cfg.replay.localize:  # a pre-pass: map -> odom estimated from the scans (pipeline/localize.py)
+            with self.timer("localize"):
+                self.localization = localize_logs(req.logs, cfg, static_layer.grid if static_layer else None,
+                                                  cfg.replay.tf)  # fmt: skip
+            if self.localization.child is None:  # cannot align: one warning, the recorded poses
+                warnings.warn(LtmapWarning(self.localization.message), stacklevel=2)
         req.out_dir.mkdir(parents=True, exist_ok=True)  # the CLI gives a fresh staging folder (OutputFolder)
         run = RunState(cfg, lmap, req.out_dir, req.shown_dir)
         return run, tf, mounts, static_info, resume_info
@@ -200,6 +211,8 @@ class Replay:
         sinks: list[Sink] = [planner] if planner is not None else []
         if cfg.replay.mcap_out:
             sinks.append(McapSink(run, mounts))
+        if self.localization is not None:
+            sinks.append(LocalizationSink(self.localization))
         sinks += [SnapshotSink(cfg), MapsSink(), self.events]
         if cfg.replay.plots:
             sinks.append(PlotsSink(self.events, self.metrics, planner))
@@ -232,10 +245,13 @@ class Replay:
             stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate)
             reader = open_reader(stream, timer.seconds, self.threads)
             try:
+                self._feed_localization(None)
                 for topic, log_ns, item in reader:
+                    self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
                     self._report_progress(log_ns)
+                self._feed_localization(2**63 - 1)
                 for event in self.scheduler.flush():
                     self._dispatch(event)
                 for job in self.executor.drain():
@@ -334,10 +350,22 @@ class Replay:
         return data
 
     # ------------------------------------------------------------------------------------
+    def _feed_localization(self, log_ns: int | None) -> None:
+        """The pre-pass's map -> odom estimates enter tf as if recorded: each when the log reaches
+        the scan it was estimated from (``None``: the first ones, before the log)."""
+        loc = self.localization
+        if loc is None or not loc.samples:
+            return
+        i = self._next_loc
+        while i < len(loc.samples) and (i < 2 if log_ns is None else loc.log_times[i] <= log_ns):
+            self._dispatch(self.scheduler.add_localized(loc.samples[i]))
+            i += 1
+        self._next_loc = i
+
     def _dispatch(self, event) -> None:
         if isinstance(event, TfSeen):
             for s in self._tf_sinks:
-                s.on_tf(self.state, event.sample)
+                s.on_tf(self.state, event.sample, event.source)
         elif isinstance(event, Skipped):
             c = self.counts
             c.skipped[event.reason] += 1

@@ -42,6 +42,7 @@ class Report:
     snapshots: list = field(default_factory=list)  # SnapshotSink
     events: dict | None = None  # EventsSink
     processing_latency_ms: dict | None = None  # MetricsSink
+    localization: dict | None = None  # LocalizationSink (--localize)
     outputs: dict = field(default_factory=dict)  # every sink: name -> path
 
     def to_dict(self) -> dict:

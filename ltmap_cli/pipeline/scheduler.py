@@ -33,6 +33,7 @@ class TfSeen:
     """A tf or odometry sample the buffer took in (replay.mcap copies it)."""
 
     sample: TfSample | OdometrySample
+    source: str | None = None  # "localize" for the localization pre-pass's estimates
 
 
 @dataclass
@@ -54,6 +55,41 @@ class Skipped:
     frame: object = None
 
 
+class FrameHold:
+    """Sensor frames held for tf, released in header-stamp order (the rule of the module doc):
+    ``push`` each frame, then ``release(log_ns, tf_high_ns)`` yields those whose tf has had time to
+    arrive; ``flush`` the rest at the end."""
+
+    def __init__(self, wait_ns: int, max_pending: int = MAX_PENDING):
+        self.wait_ns = wait_ns
+        self.max_pending = max_pending
+        self.heap: list = []
+        self._seq = 0
+
+    def __len__(self) -> int:
+        return len(self.heap)
+
+    def push(self, stamp_ns: int, log_ns: int, payload) -> None:
+        heapq.heappush(self.heap, (stamp_ns, self._seq, log_ns, payload))
+        self._seq += 1
+
+    def release(self, log_ns: int, tf_high_ns: int | None) -> Iterator:
+        heap, wait = self.heap, self.wait_ns
+        while heap and (
+            (tf_high_ns is not None and heap[0][0] <= tf_high_ns - wait)
+            or heap[0][2] <= log_ns - wait
+            or len(heap) > self.max_pending
+        ):
+            yield heapq.heappop(heap)[3]
+
+    def flush(self) -> Iterator:
+        while self.heap:
+            yield heapq.heappop(self.heap)[3]
+
+    def payloads(self) -> Iterator:
+        return (entry[3] for entry in self.heap)
+
+
 class Scheduler:
     """``feed(topic, log_ns, item)`` for each message in log order, then ``flush()``; both yield
     ``TfSeen``, ``Placed`` and ``Skipped`` events. ``fixed_frame`` and ``base_frame`` are chosen at
@@ -71,8 +107,7 @@ class Scheduler:
         self.base_frame: str | None = None
         self.fixed_later: tuple | None = None  # (--fixed-frame, sensor frames) when tf lacked it at the start
         self.tf_high_ns: int | None = None  # newest header stamp of a dynamic tf / odometry sample
-        self._pending: list = []
-        self._seq = 0
+        self.hold = FrameHold(wait_ns, max_pending)
 
     def feed(self, topic: str, log_ns: int, item) -> Iterator[TfSeen | Placed | Skipped]:
         if isinstance(item, (TfSample, OdometrySample)):
@@ -83,20 +118,18 @@ class Scheduler:
             self._time("tf", t0)
             yield TfSeen(item)
         else:
-            heapq.heappush(self._pending, (item.stamp_ns, self._seq, log_ns, topic, item))
-            self._seq += 1
-        pending, wait = self._pending, self.wait_ns
-        while pending and (
-            (self.tf_high_ns is not None and pending[0][0] <= self.tf_high_ns - wait)
-            or pending[0][2] <= log_ns - wait
-            or len(pending) > self.max_pending
-        ):
-            _, _, _, t, frame = heapq.heappop(pending)
+            self.hold.push(item.stamp_ns, log_ns, (topic, item))
+        for t, frame in self.hold.release(log_ns, self.tf_high_ns):
             yield self._place(t, frame)
 
+    def add_localized(self, sample: TfSample) -> TfSeen:
+        """A map -> odom estimate of the localization pre-pass, taken in as if recorded (its edge
+        beats a recorded one)."""
+        self.tf.add_localized(sample)
+        return TfSeen(sample, source="localize")
+
     def flush(self) -> Iterator[Placed | Skipped]:
-        while self._pending:
-            _, _, _, t, frame = heapq.heappop(self._pending)
+        for t, frame in self.hold.flush():
             yield self._place(t, frame)
 
     def _time(self, stage: str, t0: float) -> float:
@@ -122,7 +155,7 @@ class Scheduler:
     def _place(self, topic: str, frame) -> Placed | Skipped:
         t0 = time.perf_counter()
         if self.fixed_frame is None:
-            self._choose_frames({frame.frame_id, *(p[4].frame_id for p in self._pending)})
+            self._choose_frames({frame.frame_id, *(f.frame_id for _, f in self.hold.payloads())})
         if not frame.frame_id:
             return Skipped(topic, f"{topic}: message has an empty header.frame_id", frame)
         T, reason = self.tf.try_lookup(self.fixed_frame, frame.frame_id, frame.stamp_ns)

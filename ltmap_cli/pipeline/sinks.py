@@ -85,7 +85,7 @@ class Sink:
     tick_stage = "output"
     finish_stage = "output"
 
-    def on_tf(self, run: RunState, sample) -> None:
+    def on_tf(self, run: RunState, sample, source: str | None = None) -> None:
         pass
 
     def on_frame(self, run: RunState, done: FrameDone) -> None:
@@ -155,12 +155,13 @@ class McapSink(Sink):
         for m in self.mounts:
             self.writer.write_tf(run.log_start_ns, [(m.parent, m.child, m.translation, m.rotation_xyzw)], static=True)
 
-    def on_tf(self, run, item) -> None:
+    def on_tf(self, run, item, source: str | None = None) -> None:
         """/tf and /tf_static: the transforms the replay used, as it used them. A sample the tf
-        buffer ignored (an edge a --tf mount or /tf owns) is not copied; a pose from
-        nav_msgs/Odometry (no /tf for that edge) is written to /tf."""
+        buffer ignored (an edge a --tf mount, /tf or --localize owns) is not copied; a pose from
+        nav_msgs/Odometry (no /tf for that edge) and the estimates of --localize go to /tf."""
         static = isinstance(item, TfSample) and item.static
-        source = "odom" if isinstance(item, OdometrySample) else ("static" if static else "tf")
+        if source is None:
+            source = "odom" if isinstance(item, OdometrySample) else ("static" if static else "tf")
         edge = self.tf.edges.get(norm(item.child))
         if edge is None or edge.source != source or edge.parent != norm(item.parent):
             return
@@ -232,6 +233,22 @@ class McapSink(Sink):
                               scan.range_max, o_since_frame=since)  # fmt: skip
         self.writer.write_scan("/scan_fused", scan.stamp_ns, scan.frame_id, scan.angle_min, scan.angle_increment,
                                scan.range_min, scan.range_max, ranges)  # fmt: skip
+
+
+# ------------------------------------------------------------------------------------------
+class LocalizationSink(Sink):
+    """localization.csv (--localize): the pre-pass's map -> odom estimate per scan, its match score
+    and whether it was accepted; its summary goes to the report."""
+
+    name = "localization"
+    FILE = "localization.csv"
+
+    def __init__(self, result):
+        self.result = result
+
+    def finish(self, run) -> dict:
+        write_text_atomic(run.out / self.FILE, self.result.csv_text())
+        return {"localization": self.result.summary, "outputs": {"localization": str(run.final / self.FILE)}}
 
 
 # ------------------------------------------------------------------------------------------
