@@ -17,6 +17,7 @@ from typing import Any
 from .core.config import MapConfig
 from .errors import ConfigError, shown
 from .io import safe_yaml
+from .io.bounded import DEFAULT_MAX_MESSAGE_MB
 
 
 @dataclass
@@ -30,6 +31,7 @@ class ReplayConfig:
     depth_topics: list[str] = field(default_factory=list)
     tf: list[str] = field(default_factory=list)  # extra mounts: parent:child=x,y,z,roll,pitch,yaw
     allow_truncated: bool = False
+    max_message_mb: float = DEFAULT_MAX_MESSAGE_MB  # largest chunk / message read (uncompressed); more is refused
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
@@ -70,6 +72,8 @@ class Config:
             problems.append("replay.snapshot_every must be > 0")
         if self.replay.plan_goal and len(self.replay.plan_goal) != 2:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
+        if not self.replay.max_message_mb > 0:
+            problems.append(f"replay.max_message_mb must be > 0, got {self.replay.max_message_mb}")
         if self.replay.map_period < 0:
             problems.append("replay.map_period must be >= 0")
         if self.replay.scan_fused_window_s < 0:

@@ -57,6 +57,7 @@ from typing import Any
 
 from ..errors import InputError, LogReadError, LtmapWarning
 from . import decode as dec
+from .bounded import DEFAULT_MAX_MESSAGE_MB
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
 from .sources import Source, TopicInfo, normalize_type, open_source
 
@@ -415,8 +416,12 @@ class LogSet:
         self.close()
 
 
-def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False) -> LogSet:
-    """Open one or several logs as one ``LogSet`` (see the module doc)."""
+def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False,
+              max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> LogSet:
+    """Open one or several logs as one ``LogSet`` (see the module doc). ``max_message_mb``: the
+    largest chunk or message (uncompressed) read; a log declaring more is refused (``TooLargeError``)
+    before anything is decompressed."""
+    max_bytes = int(max_message_mb * 2**20)
     if isinstance(paths, (str, Path)):
         paths = [paths]
     paths = [Path(p) for p in paths]
@@ -426,7 +431,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     given: dict[Path, Path] = {}  # resolved file of each source -> the path given for it
     try:
         for p in paths:
-            opened = open_source(p)
+            opened = open_source(p, max_bytes)
             sources.extend(opened)
             for src in opened:
                 real = Path(src.path).resolve()
@@ -439,4 +444,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
         for s in sources:
             s.close()
         raise
+    for src in sources:
+        if getattr(src, "note", None):
+            warnings.warn(LtmapWarning(src.note), stacklevel=2)
     return LogSet(paths, sources, allow_truncated)

@@ -235,7 +235,8 @@ class Replay:
 
         cfg, req, lmap, tf = self.cfg, self.req, self.lmap, self.tf
         stopped_at = None
-        with open_logs(logs_paths, allow_truncated=cfg.replay.allow_truncated) as logs:
+        with open_logs(logs_paths, allow_truncated=cfg.replay.allow_truncated,
+                       max_message_mb=cfg.replay.max_message_mb) as logs:
             sel = logs.select(
                 scan_topics=cfg.replay.scan_topics,
                 cloud_topics=cfg.replay.cloud_topics,
