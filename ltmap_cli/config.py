@@ -18,6 +18,7 @@ from .core.config import MapConfig
 from .errors import ConfigError, shown
 from .io import safe_yaml
 from .io.bounded import DEFAULT_MAX_MESSAGE_MB
+from .static.memory import DEFAULT_MAX_STATIC_MB
 
 
 @dataclass
@@ -35,6 +36,7 @@ class ReplayConfig:
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
+    max_static_mb: float = DEFAULT_MAX_STATIC_MB  # memory S may take on the voxel lattice; more is refused
     event_window_s: float = 5.0  # voxels crossing LT's threshold this close in time ...
     event_link_m: float = 0.15  # ... and this close in space (chained) are one event
     plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
@@ -72,6 +74,8 @@ class Config:
             problems.append("replay.snapshot_every must be > 0")
         if self.replay.plan_goal and len(self.replay.plan_goal) != 2:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
+        if not self.replay.max_static_mb > 0:
+            problems.append(f"replay.max_static_mb must be > 0, got {self.replay.max_static_mb}")
         if not self.replay.max_message_mb > 0:
             problems.append(f"replay.max_message_mb must be > 0, got {self.replay.max_message_mb}")
         if self.replay.map_period < 0:

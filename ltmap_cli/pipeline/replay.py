@@ -86,6 +86,7 @@ def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
 
     layer = load_static_input(path, wall_height=cfg.replay.static_wall_height)
     g = layer.grid
+    check_static_memory(path, g.data.shape, g.resolution, cfg)  # before the lattice is allocated
     static = StaticGrid.from_height_map(g.data, layer.height, g.resolution, g.origin, cfg.map.resolution)
     info = {
         "path": str(path),
@@ -95,6 +96,23 @@ def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
         "static_voxels": int((static.top_k + 1).clip(min=0).sum()),
     }
     return static, info, layer
+
+
+def check_static_memory(path: Path, shape: tuple[int, ...], resolution: float, cfg: Config) -> None:
+    """Refuse, in one line, a static map whose voxel lattice would need more than
+    ``replay.max_static_mb`` (a 700 m map at 0.05 m, or a fine map under a very fine --resolution)."""
+    from ..errors import MapFileError
+    from ..static.memory import human, lattice_bytes
+
+    h, w = int(shape[0]), int(shape[1])
+    cells, need = lattice_bytes(w, h, float(resolution), cfg.map.resolution)
+    limit = cfg.replay.max_static_mb * 2**20
+    if need > limit:
+        raise MapFileError(
+            f"--static {path}: the static map is {w} x {h} cells ({w * resolution:.6g} x {h * resolution:.6g} m); "
+            f"on the {cfg.map.resolution:g} m voxel lattice that is about {cells:.3g} cells, needing about "
+            f"{human(need)}, over replay.max_static_mb ({cfg.replay.max_static_mb:g} MB); crop the map, use a coarser "
+            f"--resolution, or raise the limit with --set replay.max_static_mb=N")
 
 
 def _seed_keys(layer, cfg: Config) -> np.ndarray:
