@@ -204,7 +204,7 @@ def parse_set(values: tuple[str, ...] | list[str]) -> list[tuple[str, object]]:
         try:
             out.append((key.strip(), safe_yaml.loads(raw)))
         except safe_yaml.YamlLimitError as exc:
-            raise ConfigError(f"--set {shown(key.strip())}: the value {exc}; give a plain value") from None
+            raise ConfigError(f"--set {key.strip()[:80]}: the value {exc}; give a plain value") from None
         except Exception:  # noqa: BLE001 - yaml.YAMLError and its C-parser kin
             raise ConfigError(f"--set {shown(v)}: the value is not valid YAML; quote strings, e.g. "
                               f"--set replay.fixed_frame=map") from None

@@ -221,15 +221,15 @@ def _read_image(path: Path, max_cells: int = DEFAULT_MAX_CELLS) -> tuple[np.ndar
 
     from PIL import Image, UnidentifiedImageError
 
+    pil_bound = Image.MAX_IMAGE_PIXELS
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            Image.MAX_IMAGE_PIXELS = None  # max_cells is the bound, checked on the header below
             with Image.open(path) as img:  # reads the header only
                 width, height = img.size
                 if width * height > max_cells:
                     raise _too_big(path, width, height, max_cells)
-                if width * height > (Image.MAX_IMAGE_PIXELS or 0) * 2:  # --max-cells was raised past PIL's bound
-                    img = _allow_large(img)
                 img.load()
                 mode = img.mode
                 if mode == "P":
@@ -259,20 +259,13 @@ def _read_image(path: Path, max_cells: int = DEFAULT_MAX_CELLS) -> tuple[np.ndar
             f"{path}: not a readable PGM or PNG image ({shown(str(exc))}); re-export the map image as PGM "
             "or PNG (grayscale or RGB)"
         ) from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = pil_bound
     if mode.startswith("I"):  # 16-bit grey (a 16-bit PNG opens as mode I / I;16)
         return arr, "I", QUANTUM_MAX
     if mode not in ("L", "LA", "RGB", "RGBA"):
         raise MapFileError(f"{path}: unsupported image mode {mode}; use a PGM or PNG grayscale/RGB image")
     return arr, mode, 255
-
-
-def _allow_large(img):
-    """PIL refuses images beyond 2 x ``MAX_IMAGE_PIXELS`` at load; ltmap's own bound (--max-cells)
-    was checked, so lift PIL's for this image."""
-    from PIL import Image
-
-    Image.MAX_IMAGE_PIXELS = None
-    return img
 
 
 def _quanta(pixels: np.ndarray, kind: str, maxval: int) -> tuple[np.ndarray, np.ndarray | None]:

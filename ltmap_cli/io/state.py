@@ -50,6 +50,9 @@ def read_state(path: str | Path, max_bytes: int = MAX_STATE_BYTES) -> tuple[dict
             if declared > max_bytes:
                 raise _fault(p, f"its arrays declare {declared / 2**30:.1f} GB, more than a state file holds "
                                 f"({max_bytes / 2**30:.0f} GB)")
+            bad = zf.testzip()  # every member's CRC (numpy reads an array without reaching it)
+            if bad is not None:
+                raise _fault(p, f"not a readable ltmap state file (array {shown(bad)} fails its CRC: flipped bytes)")
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
     except MapFileError:
