@@ -277,3 +277,60 @@ def map_yaml(path: Path, image: str, resolution: float = 0.05) -> Path:
     path.write_text(f"image: {image}\nresolution: {resolution}\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
                     "occupied_thresh: 0.65\nfree_thresh: 0.196\n")
     return path
+
+
+# ----------------------------------------------------------------------------- a bag's index
+
+
+def bag_index_pos(data: bytes) -> tuple[int, int]:
+    """(index_pos, offset of its 8 bytes in the file) of a ROS 1 bag."""
+    off = data.index(b"index_pos=") + len(b"index_pos=")
+    return struct.unpack_from("<Q", data, off)[0], off
+
+
+def strip_index(src: Path, dst: Path) -> Path:
+    """The bag as a recorder killed before closing it leaves it: no index (index_pos 0, the
+    connection and chunk info records at the end cut off)."""
+    data = src.read_bytes()
+    pos, off = bag_index_pos(data)
+    out = bytearray(data[:pos])
+    out[off : off + 8] = bytes(8)
+    dst.write_bytes(bytes(out))
+    return dst
+
+
+def damage_index(src: Path, dst: Path, how: str) -> Path:
+    """The bag with its index records damaged:
+
+    - ``idxdata-count``: every index data record (op 4) gets a wrong ``count`` (rosbags asserts
+      ``size == count * 12``, as on an old 2010 bag);
+    - ``chunk-info``: the chunk info records (op 6) name chunk positions outside the file;
+    - ``index-pos``: the bag header points into the middle of a chunk;
+    - ``index-garbage``: the index at the end overwritten with garbage bytes.
+    """
+    data = bytearray(src.read_bytes())
+    pos, off = bag_index_pos(bytes(data))
+    if how == "idxdata-count":
+        i = 0
+        while (j := data.find(b"op=\x04", i)) >= 0:
+            k = data.find(b"count=", max(0, j - 64), j + 64)
+            if k >= 0:
+                data[k + 6] ^= 0x05
+            i = j + 1
+    elif how == "chunk-info":
+        i = pos
+        while (j := data.find(b"chunk_pos=", i)) >= 0:
+            data[j + 10 : j + 18] = struct.pack("<Q", len(data) * 7)
+            i = j + 1
+    elif how == "index-pos":
+        data[off : off + 8] = struct.pack("<Q", (4109 + pos) // 2)
+    elif how == "index-garbage":
+        import random
+
+        rng = random.Random(7)
+        for k in range(pos, len(data)):
+            data[k] = rng.randrange(256)
+    else:
+        raise ValueError(how)
+    dst.write_bytes(bytes(data))
+    return dst

@@ -203,6 +203,7 @@ class Ros1Bag:
         self.limit = limit
         self.f = path.open("rb")
         self.size = os.fstat(self.f.fileno()).st_size
+        self.index_pos = 0  # where the bag header says the index starts (0: unknown)
         try:
             if self.f.readline(64) != MAGIC:
                 raise RecordError("not a ROS 1 bag v2.0")
@@ -229,6 +230,7 @@ class Ros1Bag:
             index_pos = _u(rec.fields, "index_pos", "<Q")
             n_conn = _u(rec.fields, "conn_count", "<I")
             n_chunk = _u(rec.fields, "chunk_count", "<I")
+            self.index_pos = index_pos
             if "encryptor" in rec.fields and rec.fields["encryptor"]:
                 raise BadIndex("the bag is encrypted")
         except (RecordError, TooLargeError) as err:
@@ -326,7 +328,10 @@ class Ros1Bag:
                 break
             except RecordError as err:
                 nxt = self._resync(pos + 1)
-                layout.problems.append(f"unreadable records at bytes {pos} to {nxt} ({err})")
+                if nxt is None and 0 < self.index_pos <= pos:
+                    break  # the bag's own index, damaged: the note says so; no message is lost
+                layout.problems.append(f"unreadable records at bytes {pos} to {nxt if nxt is not None else 'the end'} "
+                                       f"({err})")
                 if nxt is None:
                     break
                 pos = nxt
