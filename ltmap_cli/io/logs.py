@@ -233,13 +233,18 @@ class LogSet:
                depth_topics: Sequence[str] = (), *, require_sensor: bool = True) -> TopicSelection:
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
         try:
-            return select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
-                                 require_sensor=require_sensor, source=self.name)
+            sel = select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
+                                require_sensor=require_sensor, source=self.name)
         except InputError:
             if stops:  # the damage is the real problem
                 raise TruncatedLogError(f"log is truncated or corrupt and has no usable sensor topic before "
                                         f"the damage: {'; '.join(stops)}") from None
             raise
+        if require_sensor and not any(self.topics[t].count for t in sel.sensor_topics):
+            where = f"; {'; '.join(stops)}" if stops else ""
+            raise (TruncatedLogError if stops else InputError)(
+                f"{self.name} has no message on its sensor topics ({', '.join(sel.sensor_topics[:5])}){where}")
+        return sel
 
     def raw(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any, str]]:
         """``(topic, log_time_ns, decode, where)`` for ``topics`` in log-time order, undecoded:

@@ -93,6 +93,45 @@ class Source:
         pass
 
 
+# the types ltmap reads fields of, and their standard fields (ROS 1 and 2 alike, compared without
+# case: CameraInfo's K is k in ROS 2): a log's own definition of one of them must have them all
+# (a damaged or foreign definition would give objects without them)
+_READ_FIELDS = {
+    "std_msgs/msg/Header": "stamp frame_id",
+    "sensor_msgs/msg/LaserScan": "header angle_min angle_max angle_increment time_increment scan_time range_min "
+                                 "range_max ranges intensities",
+    "sensor_msgs/msg/PointCloud2": "header height width fields is_bigendian point_step row_step data is_dense",
+    "sensor_msgs/msg/PointField": "name offset datatype count",
+    "sensor_msgs/msg/Image": "header height width encoding is_bigendian step data",
+    "sensor_msgs/msg/CameraInfo": "header height width distortion_model d k r p",
+    "tf2_msgs/msg/TFMessage": "transforms",
+    "tf/msg/tfMessage": "transforms",
+    "geometry_msgs/msg/TransformStamped": "header child_frame_id transform",
+    "geometry_msgs/msg/Transform": "translation rotation",
+    "geometry_msgs/msg/Vector3": "x y z",
+    "geometry_msgs/msg/Quaternion": "x y z w",
+    "geometry_msgs/msg/Point": "x y z",
+    "geometry_msgs/msg/Pose": "position orientation",
+    "geometry_msgs/msg/PoseWithCovariance": "pose covariance",
+    "nav_msgs/msg/Odometry": "header child_frame_id pose",
+}
+_READ_TYPES = tuple(_READ_FIELDS)
+
+
+def check_definitions(types: dict[str, Any]) -> None:
+    """``LogReadError`` when the log defines a type ltmap reads without one of its standard
+    fields (``types``: name -> rosbags field definitions)."""
+    for name, fdef in types.items():
+        want = _READ_FIELDS.get(name)
+        if want is None:
+            continue
+        have = {f[0].lower() for f in fdef[1]}
+        missing = [f for f in want.split() if f not in have]
+        if missing:
+            raise LogReadError(f"the log's definition of {name} lacks the field{'s' if len(missing) > 1 else ''} "
+                               f"{', '.join(missing[:5])}: the definition is damaged or not the standard one")
+
+
 class _TypeRegistry:
     """A rosbags type store filled lazily from a log's message definitions."""
 
@@ -143,6 +182,8 @@ class _TypeRegistry:
                 types = {k: v for k, v in self.default.fielddefs.items()}
             else:
                 raise LogReadError(f"no definition of message type {msgtype} in the log")
+            if fmt in ("msg", "idl"):
+                check_definitions(types)
             for name, fdef in types.items():
                 if name not in self.store.fielddefs:
                     self.store.register({name: fdef})
@@ -337,6 +378,7 @@ class McapSource(Source):
         self.file = path.open("rb")
         self.size = path.stat().st_size
         self._decoders: dict[int, Callable[[bytes], Any] | None] = {}
+        self._bad: dict[int, str] = {}  # channel -> why its schema cannot be used
         self._factories = _mcap_factories()
         summary = None
         try:
@@ -381,8 +423,16 @@ class McapSource(Source):
         return normalize_type(schema.name) if schema is not None else "(no schema)"
 
     def _decoder(self, ch: Any) -> Callable[[bytes], Any] | None:
+        if ch.id in self._bad:
+            raise LogReadError(self._bad[ch.id])
         if ch.id not in self._decoders:
             schema = self.schemas.get(ch.schema_id)
+            if schema is not None and schema.encoding in ("ros1msg", "ros2msg"):
+                try:
+                    _check_schema(schema)
+                except LogReadError as err:
+                    self._bad[ch.id] = str(err)
+                    raise
             dec = None
             for factory in self._factories:
                 dec = factory.decoder_for(ch.message_encoding, schema)
@@ -530,6 +580,21 @@ class _Bounded:
         data = self.f.read(n)
         self.left -= len(data)
         return data
+
+
+def _check_schema(schema: Any) -> None:
+    """An MCAP schema of a type ltmap reads must define its standard fields (``check_definitions``)."""
+    from rosbags.typesys import get_types_from_msg
+
+    name = normalize_type(schema.name)
+    if name not in _READ_TYPES:
+        return
+    try:
+        text = schema.data.decode("utf-8")
+        types = get_types_from_msg(_fix_ros1_msgdef(text), name)
+    except Exception:  # noqa: BLE001 - a dialect rosbags does not parse: the decoder decides
+        return
+    check_definitions(types)
 
 
 def _tell(f: Any) -> int | None:
