@@ -191,7 +191,13 @@ def test_scientific_notation_is_a_number(tmp_path):
 def test_empty_output_is_refused(tmp_path):
     bag = scans_bag(tmp_path / "s.bag", n=5)
     refused(run_cli(tmp_path, "replay", bag, "-o", ""), "-o")
-    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith("_")) == ["s.bag"]
+    svg = tmp_path / "p.svg"
+    svg.write_text(SVG_700.replace("700", "7"))
+    refused(run_cli(tmp_path, "build-static", svg, "-o", ""), "-o")
+    scenario = tmp_path / "s.yaml"
+    scenario.write_text("duration: 1\n")
+    refused(run_cli(tmp_path, "simulate", scenario, "-o", ""), "-o")
+    assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith("_")) == ["p.svg", "s.bag", "s.yaml"]
 
 
 # ----------------------------------------------------------------------------- images

@@ -224,3 +224,16 @@ def test_index_pos_is_checked_against_the_file(tmp_path):
     bag.write_bytes(bytes(data))
     got, _, stop, note = ltmap_messages(bag)
     assert len(got) == 5 and stop is None and "outside the file" in note
+
+
+def test_a_damaged_data_length_resumes_at_the_next_chunk(tmp_path):
+    """A chunk's data length flipped to 2^31 - 1 (past the end of the file) in a bag without
+    index: not a cut-off bag (a chunk follows); the scan resumes there and names the damage."""
+    bag, starts = _three_chunk_bag(tmp_path, indexed=False)
+    data = bytearray(bag.read_bytes())
+    hdr = starts[1] - 8
+    (hlen,) = struct.unpack_from("<I", data, hdr)
+    data[hdr + 4 + hlen : hdr + 8 + hlen] = struct.pack("<I", 2**31 - 1)
+    bag.write_bytes(bytes(data))
+    got, _, stop, _ = ltmap_messages(bag)
+    assert len(got) == 20 and "runs past the end of the file" in stop

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from . import nonempty_output
+
 HELP = """Build the static map S from an architect's plan (SVG) or an existing map_server map.
 
 \b
@@ -61,6 +63,7 @@ def _positive(ctx, param, value):
     default=Path("static_out"),
     show_default=True,
     help="Output folder.",
+    callback=nonempty_output,
 )
 @click.option(
     "--resolution",

@@ -8,14 +8,7 @@ from pathlib import Path
 import click
 
 from ..errors import ConfigError
-
-
-def nonempty_path(value: Path | None, flag: str) -> Path | None:
-    """An empty path ("" becomes ".": the current folder) is refused, not written into."""
-    if value is not None and str(value).strip() in ("", "."):
-        raise click.BadParameter(f"{flag} '' or {flag} . names the current folder, which the output would replace; "
-                                 f"give an output folder, e.g. {flag} out")
-    return value
+from . import nonempty_output
 
 
 class ProgressBar:
@@ -62,7 +55,7 @@ def _xy(text: str, flag: str) -> list[float]:
 @click.command("replay")
 @click.argument("logs", nargs=-1, type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("ltmap_out"), show_default=True,
-              callback=lambda ctx, param, value: nonempty_path(value, "-o"), help="Output folder.")
+              callback=nonempty_output, help="Output folder.")
 @click.option("--static", "static", type=click.Path(path_type=Path),
               help="Static map S: a build-static output (folder or static.yaml) or any map_server YAML.")
 @click.option("--resume", type=click.Path(path_type=Path),

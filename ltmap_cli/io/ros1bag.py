@@ -123,10 +123,10 @@ def read_record(f: BinaryIO, pos: int, file_size: int, limit: int, read_data: bo
     (dlen,) = struct.unpack("<I", f.read(4))
     data_pos = pos + 8 + hlen
     rec = Record(pos, fields, data_pos, dlen)
+    if data_pos + dlen > file_size:  # first: a length past the end is a cut (or a damaged length)
+        raise CutOff("record cut off")
     if dlen > limit:
         raise too_large(f"the record at byte {pos}", dlen, limit)
-    if data_pos + dlen > file_size:
-        raise CutOff("record cut off")
     data = f.read(dlen) if read_data else None
     return rec, data
 
@@ -324,8 +324,14 @@ class Ros1Bag:
                 layout.stop = (pos, str(cut))
                 break
             except CutOff as err:
-                layout.stop = (pos, str(err))
-                break
+                nxt = self._resync(pos + 1)
+                if nxt is None:  # the end of the file: a bag cut off
+                    layout.stop = (pos, str(err))
+                    break
+                layout.problems.append(f"a record at byte {pos} runs past the end of the file (its length is "
+                                       f"damaged); resumed at byte {nxt}")
+                pos = nxt
+                continue
             except RecordError as err:
                 nxt = self._resync(pos + 1)
                 if nxt is None and 0 < self.index_pos <= pos:

@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from ..errors import InputError, LogReadError, shown
-from .bounded import DEFAULT_MAX_MESSAGE_MB, TooLargeError, decompress, too_large
+from .bounded import DEFAULT_MAX_MESSAGE_MB, TooLargeError, decompress
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -544,9 +544,6 @@ class McapSource(Source):
                 continue
             ci = item[4]
             try:
-                if ci.uncompressed_size > self.max_bytes:
-                    raise too_large(f"{self.path}: the chunk at byte {ci.chunk_start_offset}", ci.uncompressed_size,
-                                    self.max_bytes)
                 self.file.seek(ci.chunk_start_offset + 1 + 8, io.SEEK_SET)
                 chunk = Chunk.read(ReadDataStream(_Bounded(self.file, ci.chunk_length)))
                 records = self._chunk_records(chunk, ci.chunk_start_offset)
