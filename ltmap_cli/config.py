@@ -15,7 +15,10 @@ from pathlib import Path
 from typing import Any
 
 from .core.config import MapConfig
-from .errors import ConfigError
+from .errors import ConfigError, shown
+from .io import safe_yaml
+from .io.bounded import DEFAULT_MAX_MESSAGE_MB
+from .static.memory import DEFAULT_MAX_STATIC_MB
 
 
 @dataclass
@@ -71,9 +74,11 @@ class ReplayConfig:
     depth_topics: list[str] = field(default_factory=list)
     tf: list[str] = field(default_factory=list)  # extra mounts: parent:child=x,y,z,roll,pitch,yaw
     allow_truncated: bool = False
+    max_message_mb: float = DEFAULT_MAX_MESSAGE_MB  # largest chunk / message read (uncompressed); more is refused
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
+    max_static_mb: float = DEFAULT_MAX_STATIC_MB  # memory S may take on the voxel lattice; more is refused
     event_window_s: float = 5.0  # voxels crossing LT's threshold this close in time ...
     event_link_m: float = 0.15  # ... and this close in space (chained) are one event
     plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
@@ -99,7 +104,7 @@ class Config:
         problems = _non_finite(self)
         problems += self.map.validate()
         if self.replay.mode not in ("trinary", "scale", "raw"):
-            problems.append(f"replay.mode must be trinary, scale or raw, got {self.replay.mode!r}")
+            problems.append(f"replay.mode must be trinary, scale or raw, got {shown(self.replay.mode)}")
         elif not problems:  # static.* is always trinary
             from .errors import ConfigError as _Bad
             from .io.mapfile import _check_trinary_levels
@@ -113,6 +118,10 @@ class Config:
             problems.append("replay.snapshot_every must be > 0")
         if self.replay.plan_goal and len(self.replay.plan_goal) != 2:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
+        if not self.replay.max_static_mb > 0:
+            problems.append(f"replay.max_static_mb must be > 0, got {self.replay.max_static_mb}")
+        if not self.replay.max_message_mb > 0:
+            problems.append(f"replay.max_message_mb must be > 0, got {self.replay.max_message_mb}")
         if self.replay.map_period < 0:
             problems.append("replay.map_period must be >= 0")
         if self.replay.scan_fused_window_s < 0:
@@ -162,24 +171,24 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
         return _coerce(value, args[0], key)
     if origin is list:
         if not isinstance(value, (list, tuple)):
-            raise ConfigError(f"config key {key} must be a list, got {value!r}")
+            raise ConfigError(f"config key {key} must be a list, got {shown(value)}")
         (item_tp,) = typing.get_args(tp) or (Any,)
         return [_coerce(v, item_tp, f"{key}[{i}]") for i, v in enumerate(value)]
     if tp is bool:
         if not isinstance(value, bool):
-            raise ConfigError(f"config key {key} must be true or false, got {value!r}")
+            raise ConfigError(f"config key {key} must be true or false, got {shown(value)}")
         return value
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"config key {key} must be an integer, got {value!r}")
+            raise ConfigError(f"config key {key} must be an integer, got {shown(value)}")
         return value
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"config key {key} must be a number, got {value!r}")
+            raise ConfigError(f"config key {key} must be a number, got {shown(value)}")
         return float(value)
     if tp is str:
         if not isinstance(value, str):
-            raise ConfigError(f"config key {key} must be a string, got {value!r}")
+            raise ConfigError(f"config key {key} must be a string, got {shown(value)}")
         return value
     return value
 
@@ -187,11 +196,11 @@ def _coerce(value: Any, tp: Any, key: str) -> Any:
 def update_from_dict(obj: Any, data: dict, prefix: str = "") -> None:
     """Set the fields of dataclass ``obj`` from nested ``data``; unknown keys are errors."""
     if not isinstance(data, dict):
-        raise ConfigError(f"config section {prefix or '(top)'} must be a mapping, got {data!r}")
+        raise ConfigError(f"config section {prefix or '(top)'} must be a mapping, got {shown(data)}")
     hints = typing.get_type_hints(type(obj))
     names = {f.name for f in dataclasses.fields(obj)}
     for key, value in data.items():
-        full = f"{prefix}{key}"
+        full = f"{prefix}{key if isinstance(key, str) and len(key) <= 80 else shown(key)}"
         if key not in names:
             raise ConfigError(
                 f"unknown config key {full}; known keys here: {', '.join(sorted(names))}"
@@ -215,24 +224,36 @@ def set_dotted(cfg: Config, dotted: str, value: Any) -> None:
 
 
 def load_config(path: str | Path | None = None) -> Config:
-    """Defaults, updated from a YAML file when given."""
-    import yaml
-
+    """Defaults, updated from a YAML file when given (read by ``io.safe_yaml``: bounded, aliases
+    counted, ``1e9`` a number)."""
     cfg = Config()
     if path is None:
         return cfg
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise ConfigError(f"config file {p} does not exist; write one with `ltmap replay --dump-config`")
-    try:
-        data = yaml.safe_load(p.read_text()) or {}
-    except yaml.YAMLError as exc:
-        line = getattr(getattr(exc, "problem_mark", None), "line", None)
-        where = f" line {line + 1}" if line is not None else ""
-        raise ConfigError(f"config file {p}{where} is not valid YAML; fix the syntax") from exc
+    data = safe_yaml.load_file(p, "config file", ConfigError) or {}
     update_from_dict(cfg, data)
     cfg.validate()
     return cfg
+
+
+def parse_set(values: tuple[str, ...] | list[str]) -> list[tuple[str, object]]:
+    """``--set KEY=VALUE`` items as (dotted key, value): the value is YAML (``1e9``, ``[1, 2]``,
+    ``true``), read by ``io.safe_yaml``."""
+    out = []
+    for v in values:
+        if "=" not in v:
+            raise ConfigError(f"--set {shown(v)}: expected KEY=VALUE, e.g. --set map.layers.tick=0.1")
+        key, raw = v.split("=", 1)
+        try:
+            out.append((key.strip(), safe_yaml.loads(raw)))
+        except safe_yaml.YamlLimitError as exc:
+            raise ConfigError(f"--set {key.strip()[:80]}: the value {exc}; give a plain value") from None
+        except Exception:  # noqa: BLE001 - yaml.YAMLError and its C-parser kin
+            raise ConfigError(f"--set {shown(v)}: the value is not valid YAML; quote strings, e.g. "
+                              f"--set replay.fixed_frame=map") from None
+    return out
 
 
 def dump_config(cfg: Config) -> str:

@@ -84,3 +84,50 @@ class LtmapWarning(UserWarning):
     """Something a user should know that does not stop the run (a damaged message skipped).
 
     Raised with ``warnings.warn`` below the CLI; the CLI prints it as one ``ltmap: warning:`` line."""
+
+
+def shown(value: object, limit: int = 80) -> str:
+    """``value`` as a message shows it: its repr cut to about ``limit`` characters ("... N more"),
+    built within that budget, so that a huge or deeply shared value (a YAML alias bomb, a
+    kilobyte string) costs no more than its cut text."""
+    text = _bounded_repr(value, limit + 1, 0)
+    if len(text) <= limit:
+        return text
+    more = _length(value)
+    return text[:limit] + (f"... ({more} in all)" if more else "...")
+
+
+def _length(value: object) -> str:
+    if isinstance(value, (str, bytes)):
+        return f"{len(value)} characters" if isinstance(value, str) else f"{len(value)} bytes"
+    if isinstance(value, (list, tuple, dict, set)):
+        return f"{len(value)} items"
+    return ""
+
+
+def _bounded_repr(value: object, budget: int, depth: int) -> str:
+    if isinstance(value, (str, bytes)):
+        return repr(value[:budget])
+    if isinstance(value, (list, tuple, set, dict)) and depth < 8:
+        items = value.items() if isinstance(value, dict) else value
+        left, parts = budget, []
+        for item in items:
+            if left <= 0:
+                parts.append("...")
+                break
+            if isinstance(value, dict):
+                k, v = item
+                part = f"{_bounded_repr(k, left, depth + 1)}: {_bounded_repr(v, left, depth + 1)}"
+            else:
+                part = _bounded_repr(item, left, depth + 1)
+            parts.append(part)
+            left -= len(part) + 2
+        body = ", ".join(parts)
+        if isinstance(value, dict):
+            return "{" + body + "}"
+        if isinstance(value, list):
+            return "[" + body + "]"
+        return "(" + body + ")" if isinstance(value, tuple) else "{" + body + "}"
+    if isinstance(value, (list, tuple, set, dict)):
+        return "[...]"
+    return repr(value)[:budget]

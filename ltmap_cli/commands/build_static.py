@@ -8,6 +8,8 @@ from pathlib import Path
 
 import click
 
+from . import nonempty_output
+
 HELP = """Build the static map S from an architect's plan (SVG) or an existing map_server map.
 
 \b
@@ -62,6 +64,7 @@ def _positive(ctx, param, value):
     default=Path("static_out"),
     show_default=True,
     help="Output folder.",
+    callback=nonempty_output,
 )
 @click.option("--force", is_flag=True, help="Replace the output folder even if ltmap did not write it.")
 @click.option(
@@ -115,7 +118,7 @@ def _positive(ctx, param, value):
     "--max-cells",
     type=int,
     default=None,
-    help="Refuse maps with more cells than this [default: 2e8, about 3 GB].",
+    help="Refuse maps with more cells than this, before allocating them [default: 6.4e7, about 1 GB].",
 )
 def build_static(
     plan: Path, output: Path, force: bool, resolution, scale, wall_height, wall_thickness, origin, furniture, max_cells
@@ -130,7 +133,7 @@ def build_static(
     max_cells = DEFAULT_MAX_CELLS if max_cells is None else max_cells
     if plan.suffix.lower() in (".yaml", ".yml"):
         layer, stats = build_from_map(
-            read_map_yaml(plan), resolution, wall_height, origin, max_cells, str(plan)
+            read_map_yaml(plan, max_cells), resolution, wall_height, origin, max_cells, str(plan)
         )
         what = "map"
     else:

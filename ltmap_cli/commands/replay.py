@@ -9,6 +9,7 @@ import click
 
 from ..analysis.hints import replay_hints
 from ..errors import ConfigError
+from . import nonempty_output
 
 
 class ProgressBar:
@@ -59,24 +60,10 @@ def _xy(text: str, flag: str) -> list[float]:
     return [x, y]
 
 
-def _parse_set(values: tuple[str, ...]) -> list[tuple[str, object]]:
-    import yaml
-
-    out = []
-    for v in values:
-        if "=" not in v:
-            raise ConfigError(f"--set {v}: expected KEY=VALUE, e.g. --set map.layers.tick=0.1")
-        key, raw = v.split("=", 1)
-        try:
-            out.append((key.strip(), yaml.safe_load(raw)))
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"--set {v}: the value is not valid YAML") from exc
-    return out
-
-
 @click.command("replay")
 @click.argument("logs", nargs=-1, type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("ltmap_out"), show_default=True,
+              callback=nonempty_output,
               help="Output folder, replaced as a whole when the run completes (a failed run leaves it as it was).")
 @click.option("--force", is_flag=True, help="Replace the output folder even if ltmap did not write it.")
 @click.option("--static", "static", type=click.Path(path_type=Path),
@@ -120,7 +107,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
     (OctoMap .ot, .ply, exact state), report.json and config.yaml into the output folder."""
     from ..config import dump_config as dump
-    from ..config import load_config, set_dotted
+    from ..config import load_config, parse_set, set_dotted
 
     cfg = load_config(config_file)
     flags = {
@@ -147,7 +134,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
             setattr(cfg.replay, key, list(value))
     if allow_truncated:
         cfg.replay.allow_truncated = True
-    for key, value in _parse_set(overrides):
+    for key, value in parse_set(overrides):
         set_dotted(cfg, key, value)
     cfg.validate()
     if dump_config:

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from . import nonempty_output
+
 HELP = """Write a simulated robot log from a scenario file, and its ground truth.
 
 \b
@@ -38,6 +40,7 @@ replaced as a whole (a folder ltmap did not write is refused unless --force).
     required=True,
     type=click.Path(path_type=Path),
     help="The log to write: a .mcap file, a .bag file, or a ROS 2 bag folder.",
+    callback=nonempty_output,
 )
 @click.option(
     "--format",

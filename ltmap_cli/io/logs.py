@@ -61,6 +61,7 @@ from typing import Any
 from ..errors import InputError, LogReadError, LtmapWarning, bounded
 from . import decode as dec
 from . import realsense
+from .bounded import DEFAULT_MAX_MESSAGE_MB
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
 from .sources import Source, TopicInfo, normalize_type, open_source
 
@@ -244,13 +245,18 @@ class LogSet:
                depth_topics: Sequence[str] = (), *, require_sensor: bool = True) -> TopicSelection:
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
         try:
-            return select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
-                                 require_sensor=require_sensor, source=self.name)
+            sel = select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
+                                require_sensor=require_sensor, source=self.name)
         except InputError:
             if stops:  # the damage is the real problem
                 raise TruncatedLogError(f"log is truncated or corrupt and has no usable sensor topic before "
                                         f"the damage: {'; '.join(stops)}") from None
             raise
+        if require_sensor and not any(self.topics[t].count for t in sel.sensor_topics):
+            where = f"; {'; '.join(stops)}" if stops else ""
+            raise (TruncatedLogError if stops else InputError)(
+                f"{self.name} has no message on its sensor topics ({', '.join(sel.sensor_topics[:5])}){where}")
+        return sel
 
     def raw(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any, str]]:
         """``(topic, log_time_ns, decode, where)`` for ``topics`` in log-time order, undecoded:
@@ -444,8 +450,12 @@ class LogSet:
         self.close()
 
 
-def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False) -> LogSet:
-    """Open one or several logs as one ``LogSet`` (see the module doc)."""
+def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False,
+              max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> LogSet:
+    """Open one or several logs as one ``LogSet`` (see the module doc). ``max_message_mb``: the
+    largest chunk or message (uncompressed) read; a log declaring more is refused (``TooLargeError``)
+    before anything is decompressed."""
+    max_bytes = int(max_message_mb * 2**20)
     if isinstance(paths, (str, Path)):
         paths = [paths]
     paths = [Path(p) for p in paths]
@@ -456,7 +466,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     given: dict[Path, Path] = {}  # resolved file of each source -> the path given for it
     try:
         for i, p in enumerate(paths):
-            opened = open_source(p)
+            opened = open_source(p, max_bytes)
             sources.extend(opened)
             source_log.extend([i] * len(opened))
             for src in opened:
@@ -470,4 +480,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
         for s in sources:
             s.close()
         raise
+    for src in sources:
+        if getattr(src, "note", None):
+            warnings.warn(LtmapWarning(src.note), stacklevel=2)
     return LogSet(paths, sources, allow_truncated, source_log)

@@ -57,7 +57,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ltmap_cli.errors import ConfigError, LtmapWarning, MapFileError
+from ltmap_cli.errors import ConfigError, LtmapWarning, MapFileError, shown
 from ltmap_cli.io.atomic import atomic_path, write_bytes_atomic, write_text_atomic
 
 UNKNOWN = -1
@@ -66,6 +66,11 @@ OCCUPIED = 100
 
 MODES = ("trinary", "scale", "raw")
 REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
+
+# the largest map read before anything is decoded or allocated: 64 M cells (8000 x 8000, 400 m
+# x 400 m at 0.05 m) need about 1 GB in build-static and replay; raise it with --max-cells
+DEFAULT_MAX_CELLS = 64_000_000
+MAX_MAP_YAML_BYTES = 2**20  # a map_server YAML is a few lines
 
 # map_saver's grey levels (trinary)
 PIXEL_OCCUPIED = 0
@@ -100,33 +105,19 @@ def _yaml_number(doc: dict, key: str, path: Path) -> float:
         number = float(value)  # ints, floats and numeric strings, as yaml-cpp's as<double>
     except (TypeError, ValueError):
         raise MapFileError(
-            f"{path}: key '{key}' must be a number, got {doc[key]!r}; fix the map YAML"
+            f"{path}: key '{key}' must be a number, got {shown(doc[key])}; fix the map YAML"
         ) from None
     if not math.isfinite(number):
-        raise MapFileError(f"{path}: key '{key}' must be a finite number, got {doc[key]!r}; fix the map YAML")
+        raise MapFileError(f"{path}: key '{key}' must be a finite number, got {shown(doc[key])}; fix the map YAML")
     return number
 
 
 def _load_yaml(path: Path) -> dict:
-    import yaml
+    from . import safe_yaml
 
     if not path.exists():
         raise MapFileError(f"{path}: map YAML not found; give the path of an existing map_server .yaml file")
-    if path.is_dir():
-        raise MapFileError(f"{path}: is a folder, not a map YAML; give the path of the map's .yaml file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MapFileError(f"{path}: cannot read the map YAML ({exc}); check the file") from None
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        where = ""
-        mark = getattr(exc, "problem_mark", None)
-        if mark is not None:
-            where = f" at line {mark.line + 1}, column {mark.column + 1}"
-        problem = getattr(exc, "problem", None) or "invalid YAML"
-        raise MapFileError(f"{path}: not valid YAML{where} ({problem}); fix the map YAML") from None
+    doc = safe_yaml.load_file(path, "map YAML", MapFileError, max_bytes=MAX_MAP_YAML_BYTES)
     if not isinstance(doc, dict):
         raise MapFileError(
             f"{path}: not a map_server YAML (expected a mapping with keys {', '.join(REQUIRED_KEYS)})"
@@ -137,10 +128,8 @@ def _load_yaml(path: Path) -> dict:
 QUANTUM_MAX = 65535  # GraphicsMagick Q16 (the build nav2 uses on Ubuntu / Debian)
 
 
-def _parse_pgm(raw: bytes, path: Path) -> np.ndarray:
-    """Decode a P5 (binary) or P2 (ASCII) PGM into Q16 quanta (uint32, 0..65535), shape (H, W)."""
-    magic = raw[:2]
-    # header tokens: magic, width, height, maxval; '#' comments run to the end of the line
+def _pgm_header(raw: bytes, path: Path) -> tuple[int, int, int, int]:
+    """(width, height, maxval, offset of the raster) of a P5 / P2 PGM from its first bytes."""
     tokens: list[bytes] = []
     pos = 2
     n = len(raw)
@@ -160,12 +149,19 @@ def _parse_pgm(raw: bytes, path: Path) -> np.ndarray:
     try:
         width, height, maxval = (int(t) for t in tokens)
     except ValueError:
-        raise MapFileError(f"{path}: bad PGM header {b' '.join(tokens)!r}; re-export the map image") from None
+        raise MapFileError(f"{path}: bad PGM header {shown(b' '.join(tokens))}; re-export the map image") from None
     if width <= 0 or height <= 0 or not 0 < maxval < 65536:
         raise MapFileError(
             f"{path}: bad PGM header (width {width}, height {height}, maxval {maxval}); "
             "re-export the map image"
         )
+    return width, height, maxval, pos
+
+
+def _parse_pgm(raw: bytes, path: Path) -> tuple[np.ndarray, int]:
+    """Decode a P5 (binary) or P2 (ASCII) PGM: (pixels (H, W) as stored, uint8 or uint16, maxval)."""
+    magic = raw[:2]
+    width, height, maxval, pos = _pgm_header(raw, path)
     count = width * height
     if magic == b"P5":
         pos += 1  # exactly one whitespace byte separates maxval from the raster
@@ -175,79 +171,148 @@ def _parse_pgm(raw: bytes, path: Path) -> np.ndarray:
             raise MapFileError(
                 f"{path}: PGM raster truncated ({len(raw) - pos} of {need} bytes); re-export the map image"
             )
-        pixels = np.frombuffer(raw, dtype=dtype, count=count, offset=pos).astype(np.int64)
+        pixels = np.frombuffer(raw, dtype=dtype, count=count, offset=pos)
     else:  # P2
         body = re.sub(rb"#[^\n\r]*", b" ", raw[pos:])
         try:
-            pixels = np.array(body.split(), dtype=np.int64)
+            pixels = np.array(body.split()[:count], dtype=np.int64)
         except ValueError:
             raise MapFileError(f"{path}: non-numeric pixel in ASCII PGM; re-export the map image") from None
         if pixels.size < count:
             raise MapFileError(
                 f"{path}: PGM raster truncated ({pixels.size} of {count} pixels); re-export the map image"
             )
-        pixels = pixels[:count]
-    pixels = np.clip(pixels, 0, maxval)
-    quanta = (pixels * QUANTUM_MAX + maxval // 2) // maxval  # maxval 255: exactly v * 257
-    return quanta.reshape(height, width).astype(np.uint32)
+        pixels = np.clip(pixels, 0, 65535).astype(np.uint16)
+    return pixels.reshape(height, width), maxval
 
 
-def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None]:
-    """Return (colour (H, W, 3), alpha (H, W) or None) as Q16 quanta (uint32, 0..65535)."""
+def _too_big(path: Path, width: int, height: int, max_cells: int) -> MapFileError:
+    return MapFileError(
+        f"{path}: the map image is {width} x {height} = {width * height:.3g} pixels, more than --max-cells "
+        f"{max_cells:.3g} (decoding it would need about {width * height * 20 / 2**30:.1f} GB); check the "
+        f"image, or raise --max-cells if the map is really that large")
+
+
+def _read_image(path: Path, max_cells: int = DEFAULT_MAX_CELLS) -> tuple[np.ndarray, str, int]:
+    """The map image's pixels as stored: (array, kind, maxval) with kind ``pgm`` ((H, W), levels
+    0..maxval), ``I`` ((H, W) 16-bit grey), or a PIL mode ``L`` / ``LA`` / ``RGB`` / ``RGBA``
+    ((H, W[, C]) uint8). Only a regular file is opened; the size in its header is checked against
+    ``max_cells`` before any pixel is decoded."""
+    from .safe_yaml import check_regular_file
+
     if not path.exists():
         raise MapFileError(f"{path}: map image not found; check the 'image' key of the map YAML")
+    check_regular_file(path, "map image", MapFileError, max_bytes=max_cells * 8 + 2**20)
     try:
-        raw = path.read_bytes()
+        with path.open("rb") as f:
+            head = f.read(4096)
+            if head[:2] in (b"P5", b"P2"):
+                width, height, _maxval, _pos = _pgm_header(head, path)
+                if width * height > max_cells:
+                    raise _too_big(path, width, height, max_cells)
+                f.seek(0)
+                raw = f.read()
     except OSError as exc:
-        raise MapFileError(f"{path}: cannot read the map image ({exc}); check the file") from None
-    if raw[:2] in (b"P5", b"P2"):
-        grey = _parse_pgm(raw, path)
-        return np.repeat(grey[:, :, None], 3, axis=2), None
+        raise MapFileError(f"{path}: cannot read the map image ({exc.strerror or exc}); check the file") from None
+    if head[:2] in (b"P5", b"P2"):
+        pixels, maxval = _parse_pgm(raw, path)
+        return pixels, "pgm", maxval
 
-    import io
+    import warnings
 
     from PIL import Image, UnidentifiedImageError
 
+    pil_bound = Image.MAX_IMAGE_PIXELS
     try:
-        with Image.open(io.BytesIO(raw)) as img:
-            img.load()
-            mode = img.mode
-            if mode == "P":
-                img = img.convert("RGBA" if "transparency" in img.info else "RGB")
-            elif mode == "PA":
-                img = img.convert("RGBA")
-            elif mode == "1":
-                img = img.convert("L")
-            elif mode in ("CMYK", "YCbCr", "LAB", "HSV", "RGBX"):
-                img = img.convert("RGB")
-            elif mode in ("La", "RGBa"):
-                img = img.convert("LA" if mode == "La" else "RGBA")
-            arr = np.asarray(img)
-            mode = img.mode
-    except UnidentifiedImageError:  # its message names the BytesIO, not the file
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            Image.MAX_IMAGE_PIXELS = None  # max_cells is the bound, checked on the header below
+            with Image.open(path) as img:  # reads the header only
+                width, height = img.size
+                if width * height > max_cells:
+                    raise _too_big(path, width, height, max_cells)
+                img.load()
+                mode = img.mode
+                if mode == "P":
+                    img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+                elif mode == "PA":
+                    img = img.convert("RGBA")
+                elif mode == "1":
+                    img = img.convert("L")
+                elif mode in ("CMYK", "YCbCr", "LAB", "HSV", "RGBX"):
+                    img = img.convert("RGB")
+                elif mode in ("La", "RGBa"):
+                    img = img.convert("LA" if mode == "La" else "RGBA")
+                arr = np.asarray(img)
+                mode = img.mode
+    except MapFileError:
+        raise
+    except Image.DecompressionBombError:
+        raise MapFileError(f"{path}: the map image is too large to decode safely (a decompression bomb?); "
+                           f"check the image, or raise --max-cells") from None
+    except UnidentifiedImageError:
         raise MapFileError(
             f"{path}: not a readable PGM or PNG image (format not recognised); re-export the map image "
             "as PGM or PNG (grayscale or RGB)"
         ) from None
-    except (OSError, ValueError, SyntaxError) as exc:
+    except (OSError, ValueError, SyntaxError, MemoryError) as exc:
         raise MapFileError(
-            f"{path}: not a readable PGM or PNG image ({exc}); re-export the map image as PGM or PNG "
-            "(grayscale or RGB)"
+            f"{path}: not a readable PGM or PNG image ({shown(str(exc))}); re-export the map image as PGM "
+            "or PNG (grayscale or RGB)"
         ) from None
-
+    finally:
+        Image.MAX_IMAGE_PIXELS = pil_bound
     if mode.startswith("I"):  # 16-bit grey (a 16-bit PNG opens as mode I / I;16)
-        grey = np.clip(arr.astype(np.int64), 0, QUANTUM_MAX).astype(np.uint32)
-        return np.repeat(grey[:, :, None], 3, axis=2), None
+        return arr, "I", QUANTUM_MAX
     if mode not in ("L", "LA", "RGB", "RGBA"):
         raise MapFileError(f"{path}: unsupported image mode {mode}; use a PGM or PNG grayscale/RGB image")
-    quanta = arr.astype(np.uint32) * 257  # 8-bit level -> Q16 quantum
-    if mode == "L":
+    return arr, mode, 255
+
+
+def _quanta(pixels: np.ndarray, kind: str, maxval: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """(colour (h, W, 3), alpha (h, W) or None) as Q16 quanta (uint32, 0..65535) of some rows."""
+    if kind == "pgm":
+        p = np.clip(pixels.astype(np.int64), 0, maxval)
+        grey = ((p * QUANTUM_MAX + maxval // 2) // maxval).astype(np.uint32)  # maxval 255: exactly v * 257
+        return np.repeat(grey[:, :, None], 3, axis=2), None
+    if kind == "I":
+        grey = np.clip(pixels.astype(np.int64), 0, QUANTUM_MAX).astype(np.uint32)
+        return np.repeat(grey[:, :, None], 3, axis=2), None
+    quanta = pixels.astype(np.uint32) * 257  # 8-bit level -> Q16 quantum
+    if kind == "L":
         return np.repeat(quanta[:, :, None], 3, axis=2), None
-    if mode == "LA":
+    if kind == "LA":
         return np.repeat(quanta[:, :, :1], 3, axis=2), quanta[:, :, 1]
-    if mode == "RGB":
+    if kind == "RGB":
         return quanta, None
     return quanta[:, :, :3], quanta[:, :, 3]
+
+
+STRIPE_PIXELS = 1 << 20  # pixels converted at once: the arithmetic's arrays stay ~40 MB
+
+
+def _image_cells(path: Path, mode: str, negate: bool, occupied_thresh: float, free_thresh: float,
+                 max_cells: int, saver_grey: int | None = None) -> tuple[np.ndarray, tuple | None]:
+    """int8 cells of the map image in image row order, converted a stripe of rows at a time, and
+    (what nav2 made of them, how many) for the pixels of ``saver_grey`` kept unknown (or None)."""
+    pixels, kind, maxval = _read_image(path, max_cells)
+    height, width = pixels.shape[:2]
+    cells = np.empty((height, width), dtype=np.int8)
+    rows = max(1, STRIPE_PIXELS // max(width, 1))
+    kept, all_free = 0, True
+    for r0 in range(0, height, rows):
+        colour, alpha = _quanta(pixels[r0 : r0 + rows], kind, maxval)
+        part = cells_from_image(colour, alpha, mode, negate, occupied_thresh, free_thresh)
+        if saver_grey is not None:
+            mask = (colour == saver_grey * 257).all(axis=2) & (part != UNKNOWN)  # levels are Q16 quanta
+            if alpha is not None:
+                mask &= alpha == QUANTUM_MAX
+            if mask.any():
+                kept += int(mask.sum())
+                all_free &= bool((part[mask] == FREE).all())
+                part[mask] = UNKNOWN
+        cells[r0 : r0 + rows] = part
+    return cells, (("free" if all_free else "known"), kept) if kept else None
 
 
 def cells_from_image(
@@ -283,9 +348,10 @@ def cells_from_image(
     return cells
 
 
-def read_map_yaml(path: str | Path, saver_unknown: bool = False) -> GridMap:
+def read_map_yaml(path: str | Path, max_cells: int = DEFAULT_MAX_CELLS, saver_unknown: bool = False) -> GridMap:
     """Read a map_server YAML and its image with nav2 map_io semantics (modes trinary, scale,
-    raw; negate; occupied_thresh / free_thresh). Raises MapFileError with a one-line message.
+    raw; negate; occupied_thresh / free_thresh). Raises MapFileError with a one-line message;
+    an image of more than ``max_cells`` pixels is refused from its header, before decoding.
 
     ``saver_unknown``: in trinary mode, pixels of map_saver's unknown grey (205; 50 negated) are
     unknown whatever the thresholds say. nav2's map_saver wrote ``free_thresh: 0.25`` until 2025
@@ -303,7 +369,7 @@ def read_map_yaml(path: str | Path, saver_unknown: bool = False) -> GridMap:
     image = doc["image"]
     if not isinstance(image, str) or not image.strip():
         raise MapFileError(
-            f"{path}: key 'image' must be the image file name, got {image!r}; fix the map YAML"
+            f"{path}: key 'image' must be the image file name, got {shown(image)}; fix the map YAML"
         )
     image_path = Path(image)
     if not image_path.is_absolute():
@@ -312,33 +378,33 @@ def read_map_yaml(path: str | Path, saver_unknown: bool = False) -> GridMap:
     resolution = _yaml_number(doc, "resolution", path)
     if resolution <= 0.0:
         raise MapFileError(
-            f"{path}: key 'resolution' must be > 0 (metres per cell), got {doc['resolution']!r}"
+            f"{path}: key 'resolution' must be > 0 (metres per cell), got {shown(doc['resolution'])}"
         )
 
     origin = doc["origin"]
     if not isinstance(origin, list) or len(origin) != 3:
         raise MapFileError(
-            f"{path}: key 'origin' must be a list of 3 numbers [x, y, yaw], got {origin!r}; fix the map YAML"
+            f"{path}: key 'origin' must be a list of 3 numbers [x, y, yaw], got {shown(origin)}; fix the map YAML"
         )
     origin_values = []
     for item in origin:
         if isinstance(item, bool) or not isinstance(item, (int, float, str)):
-            raise MapFileError(f"{path}: key 'origin' must be 3 numbers [x, y, yaw], got {origin!r}")
+            raise MapFileError(f"{path}: key 'origin' must be 3 numbers [x, y, yaw], got {shown(origin)}")
         try:
             number = float(item)
         except ValueError:
             raise MapFileError(
-                f"{path}: key 'origin' must be 3 numbers [x, y, yaw], got {origin!r}"
+                f"{path}: key 'origin' must be 3 numbers [x, y, yaw], got {shown(origin)}"
             ) from None
         if not math.isfinite(number):
-            raise MapFileError(f"{path}: key 'origin' must be 3 finite numbers, got {origin!r}")
+            raise MapFileError(f"{path}: key 'origin' must be 3 finite numbers, got {shown(origin)}")
         origin_values.append(number)
 
     negate_raw = doc["negate"]
     if isinstance(negate_raw, (bool, int)):
         negate = bool(negate_raw)
     else:
-        raise MapFileError(f"{path}: key 'negate' must be 0 or 1 (or false/true), got {negate_raw!r}")
+        raise MapFileError(f"{path}: key 'negate' must be 0 or 1 (or false/true), got {shown(negate_raw)}")
 
     occupied_thresh = _yaml_number(doc, "occupied_thresh", path)
     free_thresh = _yaml_number(doc, "free_thresh", path)
@@ -347,27 +413,20 @@ def read_map_yaml(path: str | Path, saver_unknown: bool = False) -> GridMap:
     if mode is None:
         mode = "trinary"
     if mode not in MODES:
-        raise MapFileError(f"{path}: key 'mode' must be one of {', '.join(MODES)}, got {mode!r}")
+        raise MapFileError(f"{path}: key 'mode' must be one of {', '.join(MODES)}, got {shown(mode)}")
     if mode == "scale" and not free_thresh < occupied_thresh:
         raise MapFileError(
             f"{path}: scale mode needs free_thresh < occupied_thresh, got {free_thresh} and {occupied_thresh}"
         )
 
-    colour, alpha = _read_image(image_path)
-    cells = cells_from_image(colour, alpha, mode, negate, occupied_thresh, free_thresh)
-    if saver_unknown and mode == "trinary":
-        grey = 255 - PIXEL_UNKNOWN if negate else PIXEL_UNKNOWN
-        mask = (colour == grey * 257).all(axis=2) & (cells != UNKNOWN)  # levels are Q16 quanta
-        if alpha is not None:
-            mask &= alpha == QUANTUM_MAX
-        if mask.any():
-            was = "free" if (cells[mask] == FREE).all() else "known"
-            warnings.warn(LtmapWarning(
-                f"{path}: {int(mask.sum())} cells of map_saver's unknown grey {grey} are kept unknown although "
-                f"free_thresh {free_thresh:g} / occupied_thresh {occupied_thresh:g} make them {was} in nav2 "
-                f"(map_saver wrote free_thresh 0.25 until 2025; free_thresh 0.196 in the YAML says what it meant)"),
-                stacklevel=2)  # fmt: skip
-            cells[mask] = UNKNOWN
+    grey = (255 - PIXEL_UNKNOWN if negate else PIXEL_UNKNOWN) if saver_unknown and mode == "trinary" else None
+    cells, kept = _image_cells(image_path, mode, negate, occupied_thresh, free_thresh, max_cells, grey)
+    if kept:
+        warnings.warn(LtmapWarning(
+            f"{path}: {kept[1]} cells of map_saver's unknown grey {grey} are kept unknown although "
+            f"free_thresh {free_thresh:g} / occupied_thresh {occupied_thresh:g} make them {kept[0]} in nav2 "
+            f"(map_saver wrote free_thresh 0.25 until 2025; free_thresh 0.196 in the YAML says what it meant)"),
+            stacklevel=2)  # fmt: skip
     data = np.ascontiguousarray(cells[::-1])  # image row 0 is the top of the map
     return GridMap(data=data, resolution=resolution, origin=tuple(origin_values))
 
@@ -486,7 +545,7 @@ def write_map(
     Raises ConfigError for a bad mode or thresholds, ValueError for an empty or non-2D grid.
     """
     if mode not in MODES:
-        raise ConfigError(f"map mode must be 'trinary', 'scale' or 'raw', got {mode!r}")
+        raise ConfigError(f"map mode must be 'trinary', 'scale' or 'raw', got {shown(mode)}")
     if not isinstance(negate, (bool, np.bool_, int, np.integer)) or negate not in (0, 1):
         raise ConfigError(f"negate must be true or false, got {negate!r}")
     negate = bool(negate)

@@ -5,10 +5,15 @@ order (file order for damaged files that have lost their index), each with a thu
 deserializes the message only when called. A source whose file ends early or is corrupt stops
 yielding and sets ``stopped_at`` to where reading stopped; it never raises mid-stream for that.
 
-- ROS 1 bag: rosbags' rosbag1 Reader (indexed bags); a streaming record parser of our own for
-  bags without a usable index (still recording, truncated). Types are registered from the
-  connections' message definitions, so custom types that exist only in the bag decode, and the
-  old ``roslib/Header`` is read as ``std_msgs/Header``.
+- ROS 1 bag: ltmap's own record reader (``ros1bag``): the index when it is sound, else a scan of
+  every record (bags without an index, cut off, or with damaged index records), damaged chunks
+  skipped and named. Types are registered from the connections' message definitions, so custom
+  types that exist only in the bag decode, and the old ``roslib/Header`` is read as
+  ``std_msgs/Header``.
+
+Every chunk and record is checked against ``max_bytes`` (``replay.max_message_mb``) before it is
+read or decompressed, and decompression stops at the size a chunk declares (``bounded``): a log
+that declares more raises ``TooLargeError`` (a ``LogReadError``, even with --allow-truncated).
 - ROS 2 bag folder (sqlite3 or mcap storage): rosbags' rosbag2 Reader; definitions from the bag
   when it has them, else the ROS 2 Humble type store.
 - standalone MCAP: the ``mcap`` package, indexed reading in log-time order when the summary is
@@ -23,7 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from ..errors import InputError, LogReadError
+from ..errors import InputError, LogReadError, shown
+from .bounded import DEFAULT_MAX_MESSAGE_MB, TooLargeError, decompress
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -63,7 +69,8 @@ def _fix_ros1_msgdef(text: str) -> str:
 
 def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -> str:
     where = f" near byte {offset}" if offset is not None else ""
-    if isinstance(err, (struct.error, EOFError)) or type(err).__name__ == "EndOfFile":
+    # an MCAP record longer than what is left of the file (the reader's record_size_limit)
+    if isinstance(err, (struct.error, EOFError)) or type(err).__name__ in ("EndOfFile", "RecordLengthLimitExceeded"):
         reason = "the file ends in the middle of a record"
     else:
         reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
@@ -71,6 +78,7 @@ def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -
 
 
 class Source:
+    note: str | None = None  # said once when opened (a ROS 1 bag read by scanning)
     path: Path
     fmt: str
     topics: dict[str, TopicInfo]
@@ -83,6 +91,45 @@ class Source:
 
     def close(self) -> None:
         pass
+
+
+# the types ltmap reads fields of, and their standard fields (ROS 1 and 2 alike, compared without
+# case: CameraInfo's K is k in ROS 2): a log's own definition of one of them must have them all
+# (a damaged or foreign definition would give objects without them)
+_READ_FIELDS = {
+    "std_msgs/msg/Header": "stamp frame_id",
+    "sensor_msgs/msg/LaserScan": "header angle_min angle_max angle_increment time_increment scan_time range_min "
+                                 "range_max ranges intensities",
+    "sensor_msgs/msg/PointCloud2": "header height width fields is_bigendian point_step row_step data is_dense",
+    "sensor_msgs/msg/PointField": "name offset datatype count",
+    "sensor_msgs/msg/Image": "header height width encoding is_bigendian step data",
+    "sensor_msgs/msg/CameraInfo": "header height width distortion_model d k r p",
+    "tf2_msgs/msg/TFMessage": "transforms",
+    "tf/msg/tfMessage": "transforms",
+    "geometry_msgs/msg/TransformStamped": "header child_frame_id transform",
+    "geometry_msgs/msg/Transform": "translation rotation",
+    "geometry_msgs/msg/Vector3": "x y z",
+    "geometry_msgs/msg/Quaternion": "x y z w",
+    "geometry_msgs/msg/Point": "x y z",
+    "geometry_msgs/msg/Pose": "position orientation",
+    "geometry_msgs/msg/PoseWithCovariance": "pose covariance",
+    "nav_msgs/msg/Odometry": "header child_frame_id pose",
+}
+_READ_TYPES = tuple(_READ_FIELDS)
+
+
+def check_definitions(types: dict[str, Any]) -> None:
+    """``LogReadError`` when the log defines a type ltmap reads without one of its standard
+    fields (``types``: name -> rosbags field definitions)."""
+    for name, fdef in types.items():
+        want = _READ_FIELDS.get(name)
+        if want is None:
+            continue
+        have = {f[0].lower() for f in fdef[1]}
+        missing = [f for f in want.split() if f not in have]
+        if missing:
+            raise LogReadError(f"the log's definition of {name} lacks the field{'s' if len(missing) > 1 else ''} "
+                               f"{', '.join(missing[:5])}: the definition is damaged or not the standard one")
 
 
 class _TypeRegistry:
@@ -135,6 +182,8 @@ class _TypeRegistry:
                 types = {k: v for k, v in self.default.fielddefs.items()}
             else:
                 raise LogReadError(f"no definition of message type {msgtype} in the log")
+            if fmt in ("msg", "idl"):
+                check_definitions(types)
             for name, fdef in types.items():
                 if name not in self.store.fielddefs:
                     self.store.register({name: fdef})
@@ -150,52 +199,72 @@ class _TypeRegistry:
 # ----------------------------------------------------------------------------- ROS 1 bags
 
 
-class Ros1BagSource(Source):
+class Ros1Source(Source):
+    """A ROS 1 bag through ``ros1bag.Ros1Bag``: its index when it is sound, else a scan of its
+    records (as ``rosbag reindex``). Chunks that cannot be read are skipped and named in
+    ``stopped_at``; a bag whose index had to be rebuilt says so in ``note``."""
+
     fmt = "ros1"
 
-    def __init__(self, path: Path):
-        from rosbags.rosbag1 import Reader, ReaderError
+    def __init__(self, path: Path, max_bytes: int):
+        from .ros1bag import Ros1Bag
 
         self.path = path
-        self.reader = Reader(path)
-        try:
-            self.reader.open()
-        except ReaderError as err:
-            raise _NeedsStreaming(str(err)) from None
+        self.bag = Ros1Bag(path, max_bytes)
+        lay = self.bag.layout
         defs: dict[str, tuple[str, str]] = {}
+        self.conns: dict[int, tuple[str, str]] = {}
+        totals: dict[int, int] = {}
+        for ch in lay.chunks:
+            for cid, n in ch.counts.items():
+                totals[cid] = totals.get(cid, 0) + n
         self.topics = {}
-        for c in self.reader.connections:
-            defs.setdefault(c.msgtype, ("msg", c.msgdef.data))
-            idx = self.reader.indexes.get(c.id, [])
-            first = idx[0].time if idx else None
-            last = idx[-1].time if idx else None
-            _merge_topic(self.topics, TopicInfo(c.topic, c.msgtype, len(idx), first, last))
+        for cid, c in sorted(lay.connections.items()):
+            msgtype = normalize_type(c.msgtype)
+            self.conns[cid] = (c.topic, msgtype)
+            defs.setdefault(msgtype, ("msg", c.msgdef))
+            _merge_topic(self.topics, TopicInfo(c.topic, msgtype, totals.get(cid, 0), lay.first.get(cid),
+                                                lay.last.get(cid)))
         self.types = _TypeRegistry(defs, None)
-        self.start_ns = self.reader.start_time if self.reader.message_count else None
-        self.end_ns = self.reader.end_time - 1 if self.reader.message_count else None
+        firsts = [t for cid, t in lay.first.items() if cid in self.conns]
+        lasts = [t for cid, t in lay.last.items() if cid in self.conns]
+        self.start_ns = min(firsts) if firsts else None
+        self.end_ns = max(lasts) if lasts else None
+        self.note = None if lay.indexed else (
+            f"{path}: {lay.index_problem}; read by scanning its records instead (as `rosbag reindex` does)")
+        self.stopped_at = self._damage(lay.problems, None)
+
+    def _damage(self, problems: list[str], n: int | None) -> str | None:
+        stop = self.bag.layout.stop
+        parts = []
+        if problems:
+            what = "; ".join(problems[:3]) + (f"; and {len(problems) - 3} more" if len(problems) > 3 else "")
+            read = f" ({n} messages)" if n is not None else ""
+            parts.append(f"{self.path}: skipped damaged parts and read the rest{read}: {what}")
+        if stop is not None:
+            if n is None:
+                n = sum(sum(ch.counts.values()) for ch in self.bag.layout.chunks)
+            parts.append(f"{self.path}: reading stopped after {n} messages near byte {stop[0]} (the file ends "
+                         f"in the middle of a record)")
+        return "; ".join(parts) or None
 
     def iter(self, topics: set[str]) -> Iterator[RawMessage]:
-        conns = [c for c in self.reader.connections if c.topic in topics]
-        if not conns:
+        wanted = {cid for cid, (topic, _) in self.conns.items() if topic in topics}
+        if not wanted:
             return
         counts: dict[str, int] = {}
+        damaged: list[str] = list(self.bag.layout.problems)
         n = 0
-        store = self.types
-        try:
-            for conn, t, raw in self.reader.messages(connections=conns):
-                i = counts.get(conn.topic, 0)
-                counts[conn.topic] = i + 1
-                n += 1
-                yield RawMessage(t, conn.topic, i, _deser(store, raw, conn.msgtype, ros1=True))
-        except Exception as err:  # noqa: BLE001 - corrupt chunk: stop here, report where
-            self.stopped_at = _stop_text(self.path, n, _tell(self.file), err)
+        for t, cid, body in self.bag.messages(wanted, damaged):
+            topic, msgtype = self.conns[cid]
+            i = counts.get(topic, 0)
+            counts[topic] = i + 1
+            n += 1
+            yield RawMessage(t, topic, i, _deser(self.types, bytes(body), msgtype, ros1=True))
+        self.stopped_at = self._damage(list(dict.fromkeys(damaged)), n)
 
     def close(self) -> None:
-        self.reader.close()
-
-
-class _NeedsStreaming(Exception):
-    pass
+        self.bag.close()
 
 
 class Thunk:
@@ -223,175 +292,37 @@ def _deser(reg: _TypeRegistry, raw: Any, msgtype: str, ros1: bool) -> Callable[[
     return Thunk(decode, raw, "ros1" if ros1 else "cdr")
 
 
-class Ros1StreamSource(Source):
-    """A ROS 1 bag read record by record, for bags whose index is missing or cut off."""
-
-    fmt = "ros1"
-
-    def __init__(self, path: Path):
-        self.path = path
-        self.topics = {}
-        self.conns: dict[int, tuple[str, str]] = {}
-        defs: dict[str, tuple[str, str]] = {}
-        first: dict[str, int] = {}
-        last: dict[str, int] = {}
-        counts: dict[str, int] = {}
-        for item in self._records(set(), defs):
-            counts[item.topic] = counts.get(item.topic, 0) + 1
-            first.setdefault(item.topic, item.log_time_ns)
-            last[item.topic] = item.log_time_ns
-        self.stopped_at = self._stop
-        types: dict[str, str] = {}
-        for topic, msgtype in self.conns.values():
-            types.setdefault(topic, msgtype)
-        for topic, msgtype in types.items():
-            _merge_topic(self.topics, TopicInfo(topic, msgtype, counts.get(topic, 0), first.get(topic),
-                                                last.get(topic)))
-        self.types = _TypeRegistry(defs, None)
-        self.start_ns = min(first.values()) if first else None
-        self.end_ns = max(last.values()) if last else None
-
-    def _records(self, wanted: set[str] | None, defs: dict[str, tuple[str, str]]) -> Iterator[RawMessage]:
-        """All messages (wanted None: count every topic; ``set()`` also means every topic)."""
-        from rosbags.rosbag1.reader import Header, decompressors
-
-        self._stop = None
-        n = 0
-        counts: dict[str, int] = {}
-        with self.path.open("rb") as f:
-            f.readline()  # magic, checked by the caller
-            while True:
-                pos = f.tell()
-                head = f.read(4)
-                if not head:
-                    return
-                try:
-                    if len(head) < 4:
-                        raise LogReadError("record cut off")
-                    f.seek(pos)
-                    header = Header.read(f)
-                    size_b = f.read(4)
-                    if len(size_b) < 4:
-                        raise LogReadError("record cut off")
-                    size = int.from_bytes(size_b, "little")
-                    data = f.read(size)
-                    op = header.get_uint8("op")
-                    cut = len(data) < size
-                    if cut and not (op == 5 and header.get_string("compression") == "none"):
-                        raise LogReadError("record cut off")
-                    if op == 7:
-                        self._connection(header, data, defs)
-                    elif op == 2:
-                        item = self._message(header, data, counts, wanted)
-                        if item is not None:
-                            n += 1
-                            yield item
-                    elif op == 5:
-                        comp = header.get_string("compression")
-                        if comp not in decompressors:
-                            raise LogReadError(f"chunk compression {comp!r} is not supported")
-                        inner = decompressors[comp](data)
-                        for item in self._chunk(inner, counts, wanted, defs):
-                            n += 1
-                            yield item
-                        if cut:
-                            raise LogReadError("chunk cut off")
-                except Exception as err:  # noqa: BLE001 - damaged or cut-off record
-                    self._stop = _stop_text(self.path, n, pos, err)
-                    return
-
-    def _connection(self, header: Any, data: bytes, defs: dict[str, tuple[str, str]]) -> None:
-        import io
-
-        from rosbags.rosbag1.reader import Header
-
-        conn = header.get_uint32("conn")
-        topic = header.get_string("topic")
-        topic = topic if topic.startswith("/") else "/" + topic
-        inner = Header.read(io.BytesIO(int.to_bytes(len(data), 4, "little") + data))
-        msgtype = normalize_type(inner.get_string("type"))
-        self.conns[conn] = (topic, msgtype)
-        defs.setdefault(msgtype, ("msg", inner.get_string("message_definition")))
-
-    def _message(self, header: Any, data: bytes, counts: dict[str, int], wanted: set[str] | None):
-        conn = self.conns.get(header.get_uint32("conn"))
-        if conn is None:
-            raise LogReadError("message before its connection record")
-        topic, msgtype = conn
-        if wanted and topic not in wanted:
-            return None
-        i = counts.get(topic, 0)
-        counts[topic] = i + 1
-        t = header.get_time("time")
-        return RawMessage(t, topic, i, _deser(self.types, data, msgtype, ros1=True)
-                          if hasattr(self, "types") else _never)
-
-    def _chunk(self, inner: bytes, counts, wanted, defs) -> Iterator[RawMessage]:
-        import io
-
-        from rosbags.rosbag1.reader import Header
-
-        bio = io.BytesIO(inner)
-        end = len(inner)
-        while bio.tell() < end:
-            start = bio.tell()
-            try:
-                header = Header.read(bio)
-                size = int.from_bytes(bio.read(4), "little")
-                data = bio.read(size)
-            except Exception:  # noqa: BLE001 - cut inside an uncompressed chunk
-                bio.seek(start)
-                raise LogReadError("chunk cut off") from None
-            if len(data) < size:
-                raise LogReadError("chunk cut off")
-            op = header.get_uint8("op")
-            if op == 7:
-                self._connection(header, data, defs)
-            elif op == 2:
-                item = self._message(header, data, counts, wanted)
-                if item is not None:
-                    yield item
-
-    def iter(self, topics: set[str]) -> Iterator[RawMessage]:
-        if topics:
-            yield from self._records(topics, {})
-        self.stopped_at = self._stop or self.stopped_at
-
-
-def _never() -> Any:  # pragma: no cover - counting pass never decodes
-    raise RuntimeError("not decodable in the counting pass")
-
-
 # ----------------------------------------------------------------------------- ROS 2 bags
 
 
-class _CSafeYAML:
-    """Stand-in for ``ruamel.yaml.YAML(typ="safe")`` in rosbags' rosbag2 reader: PyYAML's libyaml
-    loader (CSafeLoader) reads metadata.yaml and its QoS strings ~20x faster than ruamel's pure
-    Python one (0.1 s of `ltmap info` on a small bag). Parse errors are re-raised as ruamel's
-    YAMLError, which the reader reports."""
+class _SafeYAML:
+    """Stand-in for ``ruamel.yaml.YAML(typ="safe")`` in rosbags' rosbag2 reader and metadata
+    parser: ltmap's one YAML loader (``io.safe_yaml``: libyaml's C parser, ~20x faster than
+    ruamel's pure Python one on metadata.yaml and its QoS strings; aliases bounded). Errors are
+    re-raised as ruamel's YAMLError, which rosbags reports."""
 
     def __init__(self, typ: str = "safe", **_kw: Any):
         self.typ = typ
 
     def load(self, text: str) -> Any:
-        import yaml
         from ruamel.yaml.error import YAMLError
 
+        from . import safe_yaml
+
         try:
-            return yaml.load(text, Loader=yaml.CSafeLoader)  # noqa: S506 - the C *safe* loader
-        except yaml.YAMLError as err:
-            raise YAMLError(str(err)) from None
+            return safe_yaml.loads(text)
+        except Exception as err:  # noqa: BLE001 - yaml.YAMLError and YamlLimitError
+            raise YAMLError(shown(str(err), 200)) from None
 
 
-def _use_c_yaml() -> None:
+def _use_safe_yaml() -> None:
     try:
-        import yaml
-        from rosbags.rosbag2 import reader
+        from rosbags.rosbag2 import metadata, reader
     except ImportError:  # pragma: no cover - rosbags is a dependency
         return
-    if getattr(yaml, "CSafeLoader", None) is not None and getattr(reader, "YAML", None) is not _CSafeYAML:
-        reader.YAML = _CSafeYAML
+    for module in (reader, metadata):
+        if getattr(module, "YAML", None) is not _SafeYAML:
+            module.YAML = _SafeYAML
 
 
 class Ros2BagSource(Source):
@@ -399,7 +330,7 @@ class Ros2BagSource(Source):
         from rosbags.interfaces import MessageDefinitionFormat
         from rosbags.rosbag2 import Reader
 
-        _use_c_yaml()
+        _use_safe_yaml()
         self.path = path
         self.reader = Reader(path)
         self.reader.open()  # errors handled by the caller
@@ -439,17 +370,24 @@ class Ros2BagSource(Source):
 
 
 class McapSource(Source):
-    def __init__(self, path: Path, fmt: str | None = None):
+    def __init__(self, path: Path, fmt: str | None = None, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)):
         from mcap.reader import SeekingReader
 
         self.path = path
+        self.max_bytes = max_bytes
         self.file = path.open("rb")
+        self.size = path.stat().st_size
         self._decoders: dict[int, Callable[[bytes], Any] | None] = {}
+        self._bad: dict[int, str] = {}  # channel -> why its schema cannot be used
         self._factories = _mcap_factories()
         summary = None
         try:
-            self.reader = SeekingReader(self.file, validate_crcs=True, decoder_factories=self._factories)
+            self.reader = SeekingReader(self.file, validate_crcs=True, decoder_factories=self._factories,
+                                        record_size_limit=min(max_bytes, self.size))
             summary = self.reader.get_summary()
+            if summary is not None and any(ci.chunk_start_offset + ci.chunk_length > self.size
+                                           for ci in summary.chunk_indexes):
+                summary = None  # the summary points outside the file: not to be trusted
         except Exception:  # noqa: BLE001 - no usable summary: stream instead
             summary = None
         self.topics = {}
@@ -467,7 +405,7 @@ class McapSource(Source):
             first: dict[str, int] = {}
             last: dict[str, int] = {}
             counts: dict[str, int] = {}
-            for item in self._stream(None):
+            for item in self._stream(None):  # noqa: B007 - counting
                 counts[item.topic] = counts.get(item.topic, 0) + 1
                 first.setdefault(item.topic, item.log_time_ns)
                 last[item.topic] = item.log_time_ns
@@ -485,8 +423,16 @@ class McapSource(Source):
         return normalize_type(schema.name) if schema is not None else "(no schema)"
 
     def _decoder(self, ch: Any) -> Callable[[bytes], Any] | None:
+        if ch.id in self._bad:
+            raise LogReadError(self._bad[ch.id])
         if ch.id not in self._decoders:
             schema = self.schemas.get(ch.schema_id)
+            if schema is not None and schema.encoding in ("ros1msg", "ros2msg"):
+                try:
+                    _check_schema(schema)
+                except LogReadError as err:
+                    self._bad[ch.id] = str(err)
+                    raise
             dec = None
             for factory in self._factories:
                 dec = factory.decoder_for(ch.message_encoding, schema)
@@ -506,7 +452,7 @@ class McapSource(Source):
         return Thunk(decode, data, ch.message_encoding)
 
     def _stream(self, wanted: set[str] | None) -> Iterator[RawMessage]:
-        from mcap.records import Channel, Message, Schema
+        from mcap.records import Channel, Chunk, Message, Schema
         from mcap.stream_reader import StreamReader
 
         self._stop = None
@@ -514,23 +460,42 @@ class McapSource(Source):
         counts: dict[str, int] = {}
         with self.path.open("rb") as f:
             try:
-                for record in StreamReader(f, skip_magic=False, validate_crcs=True).records:
-                    if isinstance(record, Schema):
-                        self.schemas[record.id] = record
-                    elif isinstance(record, Channel):
-                        self.channels[record.id] = record
-                    elif isinstance(record, Message):
-                        ch = self.channels.get(record.channel_id)
-                        if ch is None:
-                            raise LogReadError(f"message on unknown channel {record.channel_id}")
-                        if wanted is not None and ch.topic not in wanted:
-                            continue
-                        i = counts.get(ch.topic, 0)
-                        counts[ch.topic] = i + 1
-                        n += 1
-                        yield RawMessage(record.log_time, ch.topic, i, self._thunk(ch, record.data))
+                reader = StreamReader(f, skip_magic=False, validate_crcs=True, emit_chunks=True,
+                                      record_size_limit=min(self.max_bytes, self.size))
+                for top in reader.records:
+                    inner = self._chunk_records(top, _tell(f)) if isinstance(top, Chunk) else [top]
+                    for record in inner:
+                        if isinstance(record, Schema):
+                            self.schemas[record.id] = record
+                        elif isinstance(record, Channel):
+                            self.channels[record.id] = record
+                        elif isinstance(record, Message):
+                            ch = self.channels.get(record.channel_id)
+                            if ch is None:
+                                raise LogReadError(f"message on unknown channel {record.channel_id}")
+                            if wanted is not None and ch.topic not in wanted:
+                                continue
+                            i = counts.get(ch.topic, 0)
+                            counts[ch.topic] = i + 1
+                            n += 1
+                            yield RawMessage(record.log_time, ch.topic, i, self._thunk(ch, record.data))
+            except TooLargeError:
+                raise
             except Exception as err:  # noqa: BLE001 - truncated or corrupt: stop here
                 self._stop = _stop_text(self.path, n, _tell(f), err)
+
+    def _chunk_records(self, chunk: Any, pos: int | None) -> list[Any]:
+        """The records of an MCAP chunk, decompressed within its declared size and the limit
+        (``TooLargeError``), its CRC checked."""
+        from mcap.records import Chunk
+        from mcap.stream_reader import breakup_chunk
+
+        where = f"{self.path}: the chunk" + (f" before byte {pos}" if pos is not None else "")
+        data = decompress(chunk.compression, chunk.data, chunk.uncompressed_size, self.max_bytes, where)
+        plain = Chunk(compression="", data=data, message_end_time=chunk.message_end_time,
+                      message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
+                      uncompressed_size=chunk.uncompressed_size)
+        return breakup_chunk(plain, validate_crc=True)
 
     def iter(self, topics: set[str]) -> Iterator[RawMessage]:
         if not topics:
@@ -562,7 +527,6 @@ class McapSource(Source):
 
         from mcap.data_stream import ReadDataStream
         from mcap.records import Chunk, Message
-        from mcap.stream_reader import breakup_chunk
 
         summary = self.reader.get_summary()
         ids = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
@@ -581,8 +545,10 @@ class McapSource(Source):
             ci = item[4]
             try:
                 self.file.seek(ci.chunk_start_offset + 1 + 8, io.SEEK_SET)
-                chunk = Chunk.read(ReadDataStream(self.file))
-                records = list(breakup_chunk(chunk, validate_crc=True))
+                chunk = Chunk.read(ReadDataStream(_Bounded(self.file, ci.chunk_length)))
+                records = self._chunk_records(chunk, ci.chunk_start_offset)
+            except TooLargeError:
+                raise
             except Exception as err:  # noqa: BLE001 - a damaged chunk: skip it, say which
                 reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
                 damaged.append(f"the chunk at byte {ci.chunk_start_offset} (log time "
@@ -596,6 +562,36 @@ class McapSource(Source):
 
     def close(self) -> None:
         self.file.close()
+
+
+class _Bounded:
+    """A file seen through a window of ``limit`` bytes: a record cannot make ``read`` ask
+    for more than its chunk's length (a flipped length field would allocate gigabytes)."""
+
+    def __init__(self, f: Any, limit: int):
+        self.f = f
+        self.left = limit
+
+    def read(self, n: int = -1) -> bytes:
+        n = self.left if n < 0 else min(n, self.left)
+        data = self.f.read(n)
+        self.left -= len(data)
+        return data
+
+
+def _check_schema(schema: Any) -> None:
+    """An MCAP schema of a type ltmap reads must define its standard fields (``check_definitions``)."""
+    from rosbags.typesys import get_types_from_msg
+
+    name = normalize_type(schema.name)
+    if name not in _READ_TYPES:
+        return
+    try:
+        text = schema.data.decode("utf-8")
+        types = get_types_from_msg(_fix_ros1_msgdef(text), name)
+    except Exception:  # noqa: BLE001 - a dialect rosbags does not parse: the decoder decides
+        return
+    check_definitions(types)
 
 
 def _tell(f: Any) -> int | None:
@@ -630,7 +626,7 @@ def _merge_topic(topics: dict[str, TopicInfo], info: TopicInfo) -> None:
 _KINDS = "give a ROS 1 .bag file, a ROS 2 bag folder (with metadata.yaml) or an .mcap file"
 
 
-def open_source(path: Path) -> list[Source]:
+def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)) -> list[Source]:
     """Open one log (a ROS 2 bag folder may give several sources); ``InputError`` / ``LogReadError`` name the file and what to do."""
     if not path.exists():
         raise InputError(f"log not found: {path}; {_KINDS}")
@@ -640,8 +636,10 @@ def open_source(path: Path) -> list[Source]:
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
             raise InputError(f"{path} is a folder without metadata.yaml, not a ROS 2 bag; {_KINDS}")
-        return _open_ros2(path)
-    if path.stat().st_size == 0:
+        return _open_ros2(path, max_bytes)
+    from .safe_yaml import check_regular_file
+
+    if check_regular_file(path, "log", InputError) == 0:
         raise InputError(f"log {path} is empty (0 bytes); the recording did not write anything")
     with path.open("rb") as f:
         head = f.read(16)
@@ -650,26 +648,36 @@ def open_source(path: Path) -> list[Source]:
             raise InputError(f"{path} is a ROS 1 bag of an unsupported version ({head[:12]!r}); "
                              f"only bag format 2.0 is read: migrate it with `rosbag fix`")
         try:
-            return [Ros1BagSource(path)]
-        except _NeedsStreaming:
-            return [Ros1StreamSource(path)]
+            return [Ros1Source(path, max_bytes)]
+        except TooLargeError:
+            raise
+        except (ValueError, OSError, struct.error) as err:
+            raise LogReadError(f"cannot read ROS 1 bag {path}: {err}; the file is not a readable bag") from None
     if head.startswith(MCAP_MAGIC[:6]):
-        return [McapSource(path)]
+        return [McapSource(path, max_bytes=max_bytes)]
     if head.startswith(SQLITE_MAGIC):
-        return _open_ros2(path)
+        return _open_ros2(path, max_bytes)
     raise InputError(f"{path} is not a robot log (it starts with {head[:8]!r}); {_KINDS}")
 
 
-def _open_ros2(path: Path) -> list[Source]:
+def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
+    from .safe_yaml import MAX_YAML_BYTES, check_regular_file
+
     mcaps = sorted(path.glob("*.mcap")) if path.is_dir() else []
     if mcaps:  # mcap storage: the mcap package streams it, and reads what a cut-off file still has
-        return [McapSource(m, fmt="ros2-mcap") for m in mcaps]
+        for m in mcaps:
+            check_regular_file(m, "log", InputError)
+        return [McapSource(m, fmt="ros2-mcap", max_bytes=max_bytes) for m in mcaps]
+    if path.is_dir():  # rosbags reads metadata.yaml whole: a FIFO or a huge file would hang it
+        check_regular_file(path / "metadata.yaml", "ROS 2 bag metadata.yaml", InputError, MAX_YAML_BYTES)
+        for db in path.glob("*.db3"):
+            check_regular_file(db, "log", InputError)
     try:
         return [Ros2BagSource(path)]
     except FileNotFoundError as err:
         raise InputError(f"ROS 2 bag {path}: {err}; the bag folder is incomplete") from None
     except Exception as err:  # noqa: BLE001 - rosbags and sqlite3 raise several kinds
-        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        reason = str(err).strip().splitlines()[0][:200] if str(err).strip() else type(err).__name__
         raise LogReadError(f"cannot read ROS 2 bag {path}: {reason}; the bag is corrupt or cut off and "
                            f"nothing in it can be read") from None
 

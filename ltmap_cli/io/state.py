@@ -8,11 +8,12 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
 
-from ..errors import MapFileError
+from ..errors import MapFileError, shown
 from .atomic import atomic_path
 
 FORMAT = "ltmap-state"
@@ -25,21 +26,54 @@ def write_state(path: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> 
         np.savez_compressed(f, __header__=np.array(header), **arrays)
 
 
-def read_state(path: str | Path) -> tuple[dict[str, np.ndarray], dict]:
+MAX_STATE_BYTES = 8 * 2**30  # the arrays a state file may expand to (a 100 m floor's is ~1 GB)
+
+
+def _fault(p: Path, what: str) -> MapFileError:
+    return MapFileError(f"state file {p}: {what}; write it again with ltmap replay (or give another snapshot)")
+
+
+def read_state(path: str | Path, max_bytes: int = MAX_STATE_BYTES) -> tuple[dict[str, np.ndarray], dict]:
+    """The arrays and header of a state file. Every fault (not a zip, flipped bytes, a header
+    that is not an object, a bad version, arrays declaring more than ``max_bytes`` in all) is one
+    ``MapFileError`` naming the file; the arrays themselves are checked by the caller, which
+    knows their layout (``outputs.snapshots.check_state``)."""
+    from .safe_yaml import check_regular_file
+
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise MapFileError(f"state file {p} does not exist; give a replay output folder or its snapshots/state_*.npz")
+    check_regular_file(p, "state file", MapFileError)
     try:
+        with zipfile.ZipFile(p) as zf:
+            declared = sum(i.file_size for i in zf.infolist())
+            if declared > max_bytes:
+                raise _fault(p, f"its arrays declare {declared / 2**30:.1f} GB, more than a state file holds "
+                                f"({max_bytes / 2**30:.0f} GB)")
+            bad = zf.testzip()  # every member's CRC (numpy reads an array without reaching it)
+            if bad is not None:
+                raise _fault(p, f"not a readable ltmap state file (array {shown(bad)} fails its CRC: flipped bytes)")
         with np.load(p, allow_pickle=False) as z:
             arrays = {k: z[k] for k in z.files}
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError) as exc:
-        raise MapFileError(f"{p} is not a readable ltmap state file ({exc}); write it again with ltmap replay") from exc
+    except MapFileError:
+        raise
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, MemoryError) as exc:
+        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        raise _fault(p, f"not a readable ltmap state file ({text})") from None
     try:
-        meta = json.loads(str(arrays.pop("__header__")))
-    except (KeyError, ValueError) as exc:
-        raise MapFileError(f"{p} has no ltmap state header; it was not written by ltmap replay") from exc
+        header = arrays.pop("__header__")
+        if header.dtype.kind not in "US" or header.shape != ():
+            raise ValueError("not a string")
+        meta = json.loads(str(header))
+    except (KeyError, ValueError, RecursionError):
+        raise _fault(p, "no ltmap state header (it was not written by ltmap replay)") from None
+    if not isinstance(meta, dict):
+        raise _fault(p, f"its header is a JSON {type(meta).__name__}, not an object")
     if meta.get("format") != FORMAT:
-        raise MapFileError(f"{p} is not an ltmap state file (format {meta.get('format')!r})")
-    if int(meta.get("version", 0)) > VERSION:
-        raise MapFileError(f"{p} was written by a newer ltmap (state version {meta['version']}); upgrade ltmap")
+        raise _fault(p, f"not an ltmap state file (format {shown(meta.get('format'))})")
+    version = meta.get("version")
+    if isinstance(version, bool) or not isinstance(version, int) or version < 1:
+        raise _fault(p, f"bad state version {shown(version)} (ltmap writes versions 1 to {VERSION})")
+    if version > VERSION:
+        raise MapFileError(f"state file {p} was written by a newer ltmap (state version {version}); upgrade ltmap")
     return arrays, meta

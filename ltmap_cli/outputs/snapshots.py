@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..core.grid import coord_to_pos
-from ..core.layers import LayeredMap
-from ..errors import MapFileError
+from ..core.grid import BLOCK_VOXELS, coord_to_pos
+from ..core.layers import D_CHANNELS, O_CHANNELS, LayeredMap
+from ..errors import LtmapWarning, MapFileError, shown
 from ..io.ply import write_voxels_ply
 from ..io.state import read_state, write_state
 from .folder import OutputFolder
@@ -130,6 +130,69 @@ def _warn_once(text: str) -> None:
         warnings.warn(LtmapWarning(text), stacklevel=3)
 
 
+def static_digest(lmap: LayeredMap) -> str | None:
+    """A short hash of the static map S on the map lattice (None without S): stored in each
+    state file, so that ``--resume`` can tell when day 2 brings another S."""
+    import hashlib
+
+    S = lmap.static
+    if S is None:
+        return None
+    h = hashlib.sha256()
+    h.update(f"{S.i0},{S.j0},{S.resolution!r},{S.occ.shape}".encode())
+    h.update(np.ascontiguousarray(S.occ).tobytes())
+    h.update(np.ascontiguousarray(S.top_k).tobytes())
+    return h.hexdigest()[:16]
+
+
+def check_state(arrays: dict[str, np.ndarray], p: Path) -> float:
+    """Check a state file's arrays against the layout ``LayeredMap.state_arrays`` writes (keys,
+    dtypes, shapes, finite values in range) before anything is built from them; returns the
+    resolution. One ``MapFileError`` line names the file and the fault."""
+
+    def bad(what: str) -> MapFileError:
+        return MapFileError(f"state file {p}: {what}; the file is damaged or not from this ltmap: write it "
+                            f"again with ltmap replay (or give another snapshot)")
+
+    voxels = BLOCK_VOXELS
+    need = ["resolution", "frame_id", "tick_index"]
+    for prefix, channels in (("O_", O_CHANNELS), ("D_", D_CHANNELS)):
+        need += [f"{prefix}block_coords"] + [f"{prefix}{c}" for c in channels]
+    missing = [k for k in need if k not in arrays]
+    if missing:
+        raise bad(f"missing array{'s' if len(missing) > 1 else ''} {', '.join(missing[:5])}"
+                  + (f", ... {len(missing) - 5} more" if len(missing) > 5 else ""))
+    for key in ("resolution", "frame_id", "tick_index"):
+        a = arrays[key]
+        if a.shape != () or a.dtype.kind not in ("f" if key == "resolution" else "iu") + "iu":
+            raise bad(f"{key} must be one number, got an array of {a.dtype} with shape {a.shape}")
+    res = float(arrays["resolution"])
+    if not (math.isfinite(res) and 0.001 <= res <= 10.0):
+        raise bad(f"resolution {shown(res)} is not a voxel size in metres")
+    if int(arrays["frame_id"]) < 0 or int(arrays["tick_index"]) < 0:
+        raise bad("frame_id and tick_index must be >= 0")
+    for prefix, channels in (("O_", O_CHANNELS), ("D_", D_CHANNELS)):
+        coords = arrays[f"{prefix}block_coords"]
+        if coords.ndim != 2 or coords.shape[1] != 3 or coords.dtype.kind not in "iu":
+            raise bad(f"{prefix}block_coords must be integers of shape (N, 3), got {coords.dtype} {coords.shape}")
+        n = coords.shape[0]
+        if n and (coords.min() < -(2**28) or coords.max() >= 2**28):
+            raise bad(f"{prefix}block_coords hold block indices beyond any map")
+        if n and len(np.unique(coords, axis=0)) != n:
+            raise bad(f"{prefix}block_coords name a block twice")
+        for name, (dtype, _fill) in channels.items():
+            a = arrays[f"{prefix}{name}"]
+            if a.shape != (n, voxels):
+                raise bad(f"{prefix}{name} has shape {a.shape}, not ({n}, {voxels}) as {prefix}block_coords says")
+            if a.dtype.kind not in ("f" if np.dtype(dtype).kind == "f" else "iu"):
+                raise bad(f"{prefix}{name} holds {a.dtype}, not {np.dtype(dtype)}")
+            if a.dtype.kind == "f" and not np.isfinite(a).all():
+                raise bad(f"{prefix}{name} holds NaN or infinite values")
+            if name in ("st", "lt") and n and (a.min() < 0 or a.max() > 1):
+                raise bad(f"{prefix}{name} holds values outside [0, 1]")
+    return res
+
+
 def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     """(keys, OctoMap log-odds, resolution) of a ``.ot`` or of a state ``.npz`` (the voxels and
     log-odds of the ``.ot`` written beside it, see ``snapshot_voxels``: occupied iff log-odds > 0,
@@ -141,7 +204,7 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
     from ..core.config import MapConfig
 
     arrays, _meta = read_state(path)
-    lmap = LayeredMap(MapConfig(resolution=float(arrays["resolution"])))
+    lmap = LayeredMap(MapConfig(resolution=check_state(arrays, Path(path))))
     lmap.load_state_arrays(arrays)
     keys, logodds = snapshot_voxels(lmap)
     return keys, logodds, lmap.resolution
@@ -166,7 +229,7 @@ def write_snapshot(lmap: LayeredMap, folder: Path, t_s: float | None, meta: dict
     write_voxels_ply(ply_path, coord_to_pos(keys[occ], lmap.resolution), lt[occ], lmap.resolution)
     out["ply"] = str(ply_path)
     state_path = folder / f"state_{name}.npz"
-    write_state(state_path, lmap.state_arrays(), {"log_time_s": t_s, **meta})
+    write_state(state_path, lmap.state_arrays(), {"log_time_s": t_s, "static_digest": static_digest(lmap), **meta})
     out["state"] = str(state_path)
     return out
 
@@ -210,7 +273,7 @@ def load_resume(lmap: LayeredMap, path: str | Path) -> dict:
         n = int(keep.sum())
     else:
         arrays, meta = read_state(p)
-        res = float(arrays["resolution"])
+        res = check_state(arrays, p)
         if not math.isclose(res, lmap.resolution, rel_tol=1e-6):
             raise MapFileError(
                 f"--resume {p}: resolution {res} m differs from this run's {lmap.resolution} m; "
@@ -218,4 +281,14 @@ def load_resume(lmap: LayeredMap, path: str | Path) -> dict:
             )
         lmap.load_state_arrays(arrays, long_term_only=True)
         n = int((lmap.D.channel("lt") > 0).sum())
+        if "static_digest" in meta and meta["static_digest"] != static_digest(lmap):
+            import warnings
+
+            had, has = meta["static_digest"] is not None, lmap.static is not None
+            why = ("another static map (--static) than the run that wrote it" if had and has else
+                   "a static map (--static), and the run that wrote it had none" if has else
+                   "no static map, and the run that wrote it had one (--static)")
+            warnings.warn(LtmapWarning(
+                f"--resume {p}: this run has {why}; the long-term map was learnt against the old one, so objects "
+                f"may be counted twice or go missing: resume with the same --static"), stacklevel=2)
     return {"path": str(p), "long_term_voxels": n}

@@ -77,7 +77,7 @@ def localize_logs(logs, cfg, static_grid: GridMap | None, tf_mounts=()) -> Local
     (``replay.localization``, topics, ``tf_wait``); ``static_grid``: the static
     map S (any occupancy ``GridMap``) or None; ``tf_mounts``: the ``--tf`` specs."""
     if isinstance(logs, (str, Path, list, tuple)):
-        with open_logs(logs, allow_truncated=cfg.replay.allow_truncated) as opened:
+        with open_logs(logs, allow_truncated=cfg.replay.allow_truncated, max_message_mb=cfg.replay.max_message_mb) as opened:
             return _run(opened, cfg, static_grid, tf_mounts)
     return _run(logs, cfg, static_grid, tf_mounts)
 

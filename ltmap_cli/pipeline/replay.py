@@ -26,13 +26,14 @@ import numpy as np
 from ..analysis.planner import plan_path
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
-from ..errors import InputError, LtmapWarning, TransformError
+from ..errors import InputError, LtmapWarning, MapFileError, TransformError
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
 from ..outputs.snapshots import load_resume
+from ..static.memory import human, lattice_bytes
 from .clock import Ticker
 from .executor import OrderedExecutor
 from .localize import localize_logs
@@ -105,6 +106,7 @@ def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
     """S from a build-static output or a map_server YAML, resampled onto the map lattice."""
     layer = load_static_input(path, wall_height=cfg.replay.static_wall_height)
     g = layer.grid
+    check_static_memory(path, g.data.shape, g.resolution, cfg)  # before the lattice is allocated
     static = StaticGrid.from_height_map(g.data, layer.height, g.resolution, g.origin, cfg.map.resolution)
     info = {
         "path": str(path),
@@ -115,6 +117,20 @@ def load_static(path: Path, cfg: Config) -> tuple[StaticGrid, dict, object]:
         "unknown_cells": int((static.occ < 0).sum()),  # on the map lattice: kept unknown in S and P
     }
     return static, info, layer
+
+
+def check_static_memory(path: Path, shape: tuple[int, ...], resolution: float, cfg: Config) -> None:
+    """Refuse, in one line, a static map whose voxel lattice would need more than
+    ``replay.max_static_mb`` (a 700 m map at 0.05 m, or a fine map under a very fine --resolution)."""
+    h, w = int(shape[0]), int(shape[1])
+    cells, need = lattice_bytes(w, h, float(resolution), cfg.map.resolution)
+    limit = cfg.replay.max_static_mb * 2**20
+    if need > limit:
+        raise MapFileError(
+            f"--static {path}: the static map is {w} x {h} cells ({w * resolution:.6g} x {h * resolution:.6g} m); "
+            f"on the {cfg.map.resolution:g} m voxel lattice that is about {cells:.3g} cells, needing about "
+            f"{human(need)}, over replay.max_static_mb ({cfg.replay.max_static_mb:g} MB); crop the map, use a coarser "
+            f"--resolution, or raise the limit with --set replay.max_static_mb=N")
 
 
 def _seed_keys(layer, cfg: Config) -> np.ndarray:
@@ -227,7 +243,8 @@ class Replay:
         self._frame_sinks = [s for s in self.sinks if type(s).on_frame is not Sink.on_frame]
         self._tick_sinks = [s for s in self.sinks if type(s).on_tick is not Sink.on_tick]
         self._tf_sinks = [s for s in self.sinks if type(s).on_tf is not Sink.on_tf]
-        with open_logs(req.logs, allow_truncated=cfg.replay.allow_truncated) as logs:
+        with open_logs(req.logs, allow_truncated=cfg.replay.allow_truncated,
+                       max_message_mb=cfg.replay.max_message_mb) as logs:
             sel = logs.select(scan_topics=cfg.replay.scan_topics, cloud_topics=cfg.replay.cloud_topics,
                               depth_topics=cfg.replay.depth_topics)  # fmt: skip
             run.log_start_ns = logs.start_ns

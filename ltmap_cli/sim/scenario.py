@@ -266,8 +266,9 @@ class _Ctx:
 
 
 def _show(v: Any) -> str:
-    s = repr(v)
-    return s if len(s) <= 40 else s[:37] + "..."
+    from ..errors import shown
+
+    return shown(v, 40)
 
 
 def _mount(ctx: _Ctx, d: dict, path: str, default: Mount) -> Mount:
@@ -458,7 +459,7 @@ def _object(ctx: _Ctx, v: Any, i: int, duration: float, ids: set[str]) -> Obj:
     oid = ctx.text(d, "id", key, f"{kind}{i}")
     if oid in ids:
         raise ctx.fail(
-            f"{key}.id", f"id {oid!r} is used twice", "give every object, door and person its own id"
+            f"{key}.id", f"id {_show(oid)} is used twice", "give every object, door and person its own id"
         )
     ids.add(oid)
     pose = ctx.mapping(d["pose"], f"{key}.pose", ("x", "y", "z", "yaw"), ("x", "y"))
@@ -518,7 +519,7 @@ def _door(ctx: _Ctx, v: Any, i: int, duration: float, ids: set[str]) -> Door:
     did = ctx.text(d, "id", key, f"door{i}")
     if did in ids:
         raise ctx.fail(
-            f"{key}.id", f"id {did!r} is used twice", "give every object, door and person its own id"
+            f"{key}.id", f"id {_show(did)} is used twice", "give every object, door and person its own id"
         )
     ids.add(did)
     p1 = ctx.vector(d["from"], 2, f"{key}.from")
@@ -552,7 +553,7 @@ def _person(ctx: _Ctx, v: Any, i: int, ids: set[str]) -> Person:
     pid = ctx.text(d, "id", key, f"person{i}")
     if pid in ids:
         raise ctx.fail(
-            f"{key}.id", f"id {pid!r} is used twice", "give every object, door and person its own id"
+            f"{key}.id", f"id {_show(pid)} is used twice", "give every object, door and person its own id"
         )
     ids.add(pid)
     path = d["path"]
@@ -684,20 +685,11 @@ def parse_scenario(data: Any, source: str | Path, base_dir: Path | None = None) 
 
 def load_scenario(path: str | Path) -> Scenario:
     """Read and validate a scenario YAML file (ConfigError on any problem)."""
-    import yaml
-
     from ..errors import InputError
+    from ..io import safe_yaml
 
     p = Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise InputError(f"{p}: no such scenario file; give a scenario YAML (see docs/scenarios.md)")
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark is not None else ""
-        problem = getattr(exc, "problem", None) or type(exc).__name__
-        raise ConfigError(f"{p}: not valid YAML{where} ({problem}); fix the syntax") from None
-    except UnicodeDecodeError:
-        raise ConfigError(f"{p}: not a text file; give a scenario YAML") from None
+    data = safe_yaml.load_file(p, "scenario", ConfigError, max_bytes=16 * 2**20)
     return parse_scenario(data, p)

@@ -24,15 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PlanError
-from ..io.mapfile import GridMap
+from ..io.mapfile import DEFAULT_MAX_CELLS, GridMap
 from ..io.static_layer import StaticLayer, layer_from_grid, trinary
+from .memory import BUILD_BYTES_PER_CELL as BYTES_PER_CELL
+from .memory import human as _human
 from .rasterize import Lattice, lines_to_segments, outline_lines, polygon_mask, segments_mask, thin_parts
 from .svgplan import Plan, PlanShape
 
 OUTLINE_CLOSE_M = 1.0
 GRID_M = 1e-6  # precision of the geometry unions (m)
-BYTES_PER_CELL = 16  # grid int8 + height and seed float32 + masks and scanline work arrays
-DEFAULT_MAX_CELLS = 200_000_000
 
 
 @dataclass
@@ -59,14 +59,6 @@ def check_size(lat: Lattice, max_cells: int, source: str) -> None:
             f"({lat.width * lat.r:.6g} x {lat.height * lat.r:.6g} m at {lat.r:g} m), needing about "
             f"{_human(need)} of memory, over --max-cells {max_cells:.3g}; check the plan's scale, use a "
             "coarser --resolution, or raise --max-cells")
-
-
-def _human(n: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if n < 1024 or unit == "TB":
-            return f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} TB"
 
 
 def shapes_mask(shapes: list[PlanShape], lat: Lattice, thin_rule: bool = True):
