@@ -18,13 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.config import ProjectionConfig
 from ..errors import MapFileError
 from ..io.mapfile import GridMap
 
 # what a map argument may be, for messages
 KINDS = "a map YAML, a replay output folder (ltmap replay -o DIR), a .ot snapshot or a state .npz snapshot"
 OCCUPIED_MIN = 65  # percent: a cell value >= this is occupied
-Z_BAND = (0.05, 1.5)  # m: default projection band of .ot and state .npz snapshots (SPEC 2.3)
+Z_BAND = (ProjectionConfig.z_min, ProjectionConfig.z_max)  # m: the band .ot and state snapshots are projected over
 
 
 def occupied_mask(grid: GridMap) -> np.ndarray:

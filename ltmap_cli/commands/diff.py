@@ -7,6 +7,8 @@ from pathlib import Path
 
 import click
 
+from ..core.config import ProjectionConfig
+
 
 def _describe(grid) -> str:
     ox, oy, yaw = grid.origin
@@ -33,13 +35,14 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     from ..analysis import resolve_map_path
     from ..analysis.diff import diff_voxels, voxel_report
     from ..errors import InputError
+    from ..outputs.snapshots import final_state
 
     def snapshot(p: Path, name: str) -> Path:
-        final = Path(p) / "snapshots" / "state_final.npz"
+        final = Path(p) / final_state()
         if Path(p).is_dir():
             if not final.is_file():
                 raise InputError(
-                    f"--3d: {name} {p}: folder has no snapshots/state_final.npz; give a replay output "
+                    f"--3d: {name} {p}: folder has no {final_state()}; give a replay output "
                     "folder, a .ot or a state .npz snapshot"
                 )
             return final
@@ -123,7 +126,7 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
     nargs=2,
     type=float,
     metavar="LO HI",
-    default=(0.05, 1.5),
+    default=(ProjectionConfig.z_min, ProjectionConfig.z_max),
     show_default=True,
     help="Height band [m] over which .ot and state .npz snapshots are projected to 2D.",
 )

@@ -8,9 +8,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numpy as np
 
-def logodds(p: float) -> float:
-    return math.log(p / (1.0 - p))
+
+def logodds(p):
+    """log(p / (1 - p)) of a probability (a float) or of an array of them."""
+    return math.log(p / (1.0 - p)) if type(p) in (int, float) else np.log(p / (1.0 - p))
 
 
 @dataclass

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core.config import MapConfig, logodds
 from ..core.grid import BLOCK_VOXELS, coord_to_pos
 from ..core.layers import D_CHANNELS, O_CHANNELS, LayeredMap
 from ..errors import LtmapWarning, MapFileError, shown
@@ -34,19 +35,16 @@ from ..io.state import read_state, write_state
 from .folder import OutputFolder
 
 LT_CLIP = 1e-3
-
-
-def _logit(p):
-    return np.log(p / (1.0 - p))
+SNAPSHOTS = "snapshots"  # the snapshots' folder in a replay's output folder
 
 
 def lt_to_ot_logodds(lt: np.ndarray, occupied_thresh: float) -> np.ndarray:
     p = np.clip(np.asarray(lt, dtype=np.float64), LT_CLIP, 1.0 - LT_CLIP)
-    return (_logit(p) - _logit(occupied_thresh)).astype(np.float32)
+    return (logodds(p) - logodds(occupied_thresh)).astype(np.float32)
 
 
-def ot_logodds_to_lt(logodds: np.ndarray, occupied_thresh: float) -> np.ndarray:
-    x = np.asarray(logodds, dtype=np.float64) + _logit(occupied_thresh)
+def ot_logodds_to_lt(values: np.ndarray, occupied_thresh: float) -> np.ndarray:
+    x = np.asarray(values, dtype=np.float64) + logodds(occupied_thresh)
     lt = 1.0 / (1.0 + np.exp(-x))
     lt = np.where(lt >= 1.0 - 1.5 * LT_CLIP, 1.0, lt)
     return lt.astype(np.float32)
@@ -54,6 +52,11 @@ def ot_logodds_to_lt(logodds: np.ndarray, occupied_thresh: float) -> np.ndarray:
 
 def snapshot_name(t_s: float | None) -> str:
     return "final" if t_s is None else f"t{t_s:08.1f}s"
+
+
+def final_state() -> str:
+    """The exact state at the end of a run, relative to its output folder (what --resume loads)."""
+    return f"{SNAPSHOTS}/state_{snapshot_name(None)}.npz"
 
 
 def long_term_voxels(lmap: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
@@ -201,7 +204,6 @@ def read_snapshot_voxels(path: Path) -> tuple[np.ndarray, np.ndarray, float]:
         from ..io.ot import read_ot
 
         return read_ot(path)
-    from ..core.config import MapConfig
 
     arrays, _meta = read_state(path)
     lmap = LayeredMap(MapConfig(resolution=check_state(arrays, Path(path))))
@@ -242,11 +244,11 @@ def resolve_resume(path: str | Path) -> Path:
         fix = "give a completed ltmap replay output folder, or a snapshot file (.npz or .ot)"
         manifest = OutputFolder.completed(p, "--resume", command="replay", fix=fix)
         states = sorted(n for n in manifest["files"] if n.startswith("snapshots/state_") and n.endswith(".npz"))
-        if "snapshots/state_final.npz" in states:
-            return p / "snapshots" / "state_final.npz"
+        if final_state() in states:
+            return p / final_state()
         if states:
             return p / states[-1]
-        raise MapFileError(f"--resume {p}: no snapshots/state_final.npz in this folder; {fix}")
+        raise MapFileError(f"--resume {p}: no {final_state()} in this folder; {fix}")
     if not p.is_file():
         raise MapFileError(f"--resume {p}: no such file or folder; give a replay output folder or a snapshot")
     if p.suffix not in (".npz", ".ot"):

@@ -26,7 +26,7 @@ from ..io.atomic import write_text_atomic
 from ..io.frames import OdometrySample, ScanFrame, TfSample
 from ..io.mapfile import GridMap, write_map
 from ..io.transforms import norm
-from ..outputs.snapshots import write_snapshot
+from ..outputs.snapshots import SNAPSHOTS, write_snapshot
 
 NS = 1_000_000_000
 
@@ -257,7 +257,7 @@ class SnapshotSink(Sink):
     .ot, .ply and the exact state that --resume loads (SPEC 4)."""
 
     name = "snapshots"
-    FOLDER = "snapshots"
+    FOLDER = SNAPSHOTS
 
     def __init__(self, cfg):
         self.every_ns = int(round(cfg.replay.snapshot_every * NS))
