@@ -3,8 +3,11 @@
 SPEC 2.2. ``LayeredMap.integrate`` fuses one sensor frame into O; ``LayeredMap.end_tick``
 applies the tick rules to every voxel some frame of the tick observed:
 
-- obstacle: O occupied (log-odds > 0) and S has no occupied voxel within ``static_margin``;
-- seen free: O free (log-odds < 0).
+- obstacle: O occupied (log-odds > 0), some frame of this tick hit the voxel, and S has no
+  occupied voxel within ``static_margin``;
+- seen free: O free (log-odds < 0);
+- held: O occupied but the voxel was only missed in this tick (an object just removed: O needs
+  several misses to turn free): ST and LT keep their values, so nothing rises from a stale O.
 
 ST rises by ``tick / st_rise_s`` for obstacles and falls by ``tick / st_fall_s`` for voxels seen
 free, clamped to [0, 1]; a voxel not observed as an obstacle for ``st_forget_s`` drops to 0.
@@ -46,7 +49,11 @@ from .raycast import (
     sparse_grown,
 )
 
-O_CHANNELS = {"logodds": (np.float32, 0.0), "stamp": (np.int32, 0)}
+O_CHANNELS = {
+    "logodds": (np.float32, 0.0),
+    "stamp": (np.int32, 0),  # id of the last frame that updated the voxel (0: never: unknown)
+    "hit": (np.uint8, 0),  # 1: some frame of the current tick hit the voxel (the tick rules clear it)
+}
 D_CHANNELS = {
     "st": (np.float32, 0.0),
     "lt": (np.float32, 0.0),
@@ -193,7 +200,7 @@ def _record_history(hist_i, hist_v, hist_meta, tick_index, vid, st_v, lt_v):
 @njit(cache=True)
 def _tick_kernel(
     tb_block, tb_off, n_tb, start,
-    o_coords, logodds,
+    o_coords, logodds, hit_mark,
     d_keys, d_vals, d_coords, d_meta, st, lt, last_obs, last_seen, obst_since, free_since,
     near, near_i0, near_j0, margin,
     rise, fall, lt_fall, occ_thr, k_lo, k_hi, tick_index, max_gap, record_all,
@@ -202,7 +209,10 @@ def _tick_kernel(
     """Tick rules for the voxels observed in this tick.
 
     Returns TICK_DONE, or the index to resume from when the D pool or an event buffer is full
-    (nothing of that item was changed). counters: [obstacles, seen free, LT entered, LT left].
+    (nothing of that item was changed). counters: [obstacles, seen free, LT entered, LT left,
+    held]. A voxel O says occupied is an obstacle only when a frame of this tick hit it
+    (``hit_mark``, cleared here); observed only as a miss it is *held*: ST and LT keep their
+    values (an object just removed: O needs several misses to turn free).
     For voxels inside the z band [k_lo, k_hi] (what P shows), LT crossing ``occ_thr`` is recorded
     in ``tr`` as (kind, D block, offset, tick, tick the streak began), and ST / LT values in the
     history (every tick when ``record_all``, else at transitions).
@@ -218,20 +228,33 @@ def _tick_kernel(
         b = tb_block[t]
         off = tb_off[t]
         lo = logodds[b, off]
+        hit = hit_mark[b, off] != 0
         if lo == 0.0:
+            hit_mark[b, off] = 0
             continue
         i = (np.int64(o_coords[b, 0]) << BLOCK_BITS) | ((off >> (2 * BLOCK_BITS)) & BLOCK_MASK)
         j = (np.int64(o_coords[b, 1]) << BLOCK_BITS) | ((off >> BLOCK_BITS) & BLOCK_MASK)
         k = (np.int64(o_coords[b, 2]) << BLOCK_BITS) | (off & BLOCK_MASK)
         in_band = k_lo <= k <= k_hi
+        if lo > 0.0 and not hit:  # held: only missed while O still says occupied
+            hit_mark[b, off] = 0
+            counters[4] += 1
+            db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if db >= 0:
+                doff = voxel_offset(i, j, k)
+                if last_seen[db, doff] >= 0:
+                    last_seen[db, doff] = tick_index  # observed: no gap credit for these ticks
+            continue
         if lo > 0.0:
             r = j - near_j0
             c = i - near_i0
             if 0 <= r < NH and 0 <= c < NW and -margin <= k <= near[r, c]:
+                hit_mark[b, off] = 0
                 continue  # S's own: a wall seen where the static map has it
             db = get_or_add_block(d_keys, d_vals, d_coords, d_meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
             if db < 0:
                 return t
+            hit_mark[b, off] = 0
             doff = voxel_offset(i, j, k)
             counters[0] += 1
             old = st[db, doff]
@@ -264,6 +287,7 @@ def _tick_kernel(
             if in_band and (record_all or entered):
                 _record_history(hist_i, hist_v, hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
         else:
+            hit_mark[b, off] = 0
             counters[1] += 1
             db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
             if db < 0:
@@ -417,6 +441,7 @@ class TickResult:
     lt_entered: int  # voxels whose LT crossed the occupied threshold upwards
     lt_left: int  # voxels whose LT fell below the occupied threshold
     st_forgotten: int
+    held: int = 0  # voxels O says occupied that the tick observed only as misses (ST, LT kept)
 
 
 KEY_LIMIT = (1 << 20) - 2  # voxel keys within +-KEY_LIMIT: the packed keys of the end-point dedupe
@@ -665,7 +690,7 @@ class LayeredMap:
             o = self.O
             status, phase, start = apply_voxels_kernel(
                 hits, misses,
-                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
+                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
                 phase, start, counters,
@@ -698,13 +723,13 @@ class LayeredMap:
         record_all = self.history_every > 0 and self.tick_index % self.history_every == 0
         ev = self.events
         n_tb = int(self._tb_meta[0])
-        counters = np.zeros(4, dtype=np.int64)
+        counters = np.zeros(5, dtype=np.int64)
         start = 0
         while True:
             d = self.D
             start = _tick_kernel(
                 self._tb_block, self._tb_off, n_tb, start,
-                self.O.block_coords, self.O.data["logodds"],
+                self.O.block_coords, self.O.data["logodds"], self.O.data["hit"],
                 d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"], d.data["last_obs"],
                 d.data["last_seen"], d.data["obst_since"], d.data["free_since"],
                 self._near, self._near_i0, self._near_j0, lay.static_margin_cells,
@@ -740,6 +765,7 @@ class LayeredMap:
             lt_entered=int(counters[2]),
             lt_left=int(counters[3]),
             st_forgotten=int(forgotten),
+            held=int(counters[4]),
         )
         self.tick_index += 1
         self._tb_meta[0] = 0
@@ -861,7 +887,10 @@ class LayeredMap:
             self.seed_long_term(keys, D.get("lt", keys))
             return
         self.D = D
-        self.O = VoxelGrid.from_arrays(res, O_CHANNELS, arrays, "O_")
+        # the hit marks belong to a tick in progress, which a loaded state does not resume (states
+        # written before the channel existed have none)
+        o_arrays = {**arrays, "O_hit": np.zeros(np.shape(arrays["O_logodds"]), dtype=np.uint8)}
+        self.O = VoxelGrid.from_arrays(res, O_CHANNELS, o_arrays, "O_")
         self.frame_id = int(arrays["frame_id"])
         self.tick_index = int(arrays["tick_index"])
         self._tick_first = self.frame_id + 1
