@@ -31,7 +31,7 @@ import numpy as np
 
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
-from ..core.projection import Projection, project
+from ..core.projection import FootprintTrace, Projection, project
 from ..core.sensors import depth_to_points, scan_to_points, transform_points
 from ..errors import InputError, OutputError, TransformError, output_error
 from ..io.atomic import write_text_atomic
@@ -162,6 +162,7 @@ class Replay:
         self._p_latest: Projection | None = None
         self._p_now_key: tuple | None = None  # (frame_id, tick_index) of _p_now_value
         self._p_now_value: Projection | None = None
+        self._footprint: FootprintTrace | None = None  # the cells of self.trajectory's footprint
         self._members: dict[int, np.ndarray] = {}  # event id -> its D voxel ids (find_events)
         self._p_published = None  # ((shape, origin), data) of the last /map written
         self._frame_log: deque = deque()  # (stamp ns, lmap.frame_id) of the frames of the last seconds
@@ -484,8 +485,11 @@ class Replay:
         """P of the map as it is now, projected once per map state (frames and ticks change it):
         the planner, /map and the outputs at one state share one projection."""
         key = (self.lmap.frame_id, self.lmap.tick_index)
-        if self._p_now_key != key:
-            self._p_now_key, self._p_now_value = key, project(self.lmap)
+        if self._p_now_key != key:  # the cells the robot's footprint covered are free (SPEC 2.3)
+            if self._footprint is None:
+                self._footprint = FootprintTrace(self.cfg.map.projection.footprint_radius, self.lmap.resolution)
+            cells = self._footprint.update(self.trajectory)
+            self._p_now_key, self._p_now_value = key, project(self.lmap, footprint=cells)
         return self._p_now_value
 
     def _plan(self, t_s: float) -> None:
