@@ -13,14 +13,27 @@ that stays, or a voxel entering LT in a column something else already fills, lea
 it was. So the column counts of LT's occupied band voxels are rebuilt tick by tick from the
 transitions and the final map, and a transition *changes P* when its column goes from no occupied
 voxel to some (appear) or from some to none (disappear), and the static map does not fill it.
-An event's latency (the issue's definition) runs from the start of the first tick any of its
-voxels began its streak (``t_start_s``) to the end of the first tick at which one of its
-transitions changed P (``t_in_map_s``), so an obstacle seen continuously from its first tick
-enters after exactly st_rise_s. ``p_cells`` counts the event's cells whose P changed; an event
-with none (LT changed, P did not) has no ``t_in_map_s`` and no latency. ``t_lt_s`` is the end of
-the first tick any of its voxels crossed LT's threshold. Per voxel, (crossing tick - streak start
-+ 1) x tick; their median, min and max are kept too (``latency_median_s`` etc.: a large object
-seen bit by bit spreads them). Times are seconds of log time since the log's first message.
+
+Events are objects: a group is reported when it has at least ``min_voxels`` voxels or changed at
+least ``min_p_cells`` cells of P; the others (a voxel or three of a wall surface flickering under
+sensor noise, a table leg voxel under the top) are not reported but counted (``filtered``).
+
+Times and latencies (seconds of log time since the log's first message; a tick spans
+[start, end)):
+- ``t_in_map_s``: the end of the first tick at which one of its transitions changed P (None when
+  none did: LT changed, P did not; such an event has no latency); ``t_in_map_last_s`` the last.
+- ``t_start_s``: the start of the first tick any voxel of the event began its streak, counting
+  only the voxels in the cells whose P it changed when there are some (what P shows), else all.
+- ``latency_s`` = ``t_in_map_s - t_start_s`` (SPEC 6's add / remove latency): an obstacle seen
+  continuously from its first tick enters P after exactly st_rise_s.
+- ``cell_latency_min_s`` / ``_median_s`` / ``_max_s``: per cell of P the event changed, from the
+  start of the first tick one of the event's voxels in that cell began its streak to the end of
+  the tick the cell changed. ``latency_s`` always lies within their min and max (the first cell
+  to change and the first cell seen bound it); a large object seen bit by bit spreads them.
+- ``voxel_lt_latency_median_s``: per voxel, from its streak's first tick to the end of the tick
+  its LT crossed the threshold (what st_rise_s and lt_fall_s govern, P or not).
+- ``t_lt_s``: the end of the first tick any of its voxels crossed LT's threshold.
+``p_cells`` counts the cells of P the event changed.
 """
 
 from __future__ import annotations
@@ -35,9 +48,10 @@ APPEAR, DISAPPEAR = 1, 2
 KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}
 
 CSV_COLUMNS = [
-    "id", "kind", "t_start_s", "t_in_map_s", "latency_s", "latency_median_s", "latency_min_s", "latency_max_s",
-    "planner_latency_s", "t_lt_s", "voxels", "cells", "p_cells", "centroid_x", "centroid_y", "centroid_z",
-    "min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
+    "id", "kind", "t_start_s", "t_in_map_s", "t_in_map_last_s", "latency_s", "cell_latency_min_s",
+    "cell_latency_median_s", "cell_latency_max_s", "voxel_lt_latency_median_s", "planner_latency_s", "t_lt_s",
+    "voxels", "cells", "p_cells", "centroid_x", "centroid_y", "centroid_z", "min_x", "min_y", "min_z", "max_x",
+    "max_y", "max_z",
 ]  # fmt: skip
 
 
@@ -190,15 +204,22 @@ def find_events(
     min_voxels: int = 1,
     final_cols: np.ndarray | None = None,
     static_cols: Callable[[np.ndarray], np.ndarray] | None = None,
+    min_p_cells: int = 0,
+    filtered: dict | None = None,
 ) -> tuple[list[dict], dict[int, np.ndarray]]:
     """(events sorted by time, {event id: D voxel ids (block * 512 + offset)}).
 
     ``transitions`` rows: (kind, D block, offset, tick, streak start tick) from
     ``LayeredMap.events.transitions``; ``block_coords`` the D grid's block coordinates;
-    ``final_cols`` and ``static_cols``: see ``p_changes`` (what P looked like, for ``t_in_map_s``)."""
+    ``final_cols`` and ``static_cols``: see ``p_changes`` (what P looked like, for ``t_in_map_s``).
+    A group is an event when it has ``min_voxels`` voxels or more, or changed ``min_p_cells``
+    cells of P or more (the replay passes ``replay.event_min_voxels`` / ``event_min_p_cells``;
+    the defaults here keep every group); ``filtered``, when given, receives the counts of the others: {"appear": n,
+    "disappear": n, "voxels": n}."""
     tr = np.asarray(transitions, dtype=np.int64).reshape(-1, 5)
     events: list[dict] = []
     members: dict[int, np.ndarray] = {}
+    dropped = {"appear": 0, "disappear": 0, "voxels": 0}
     window = max(1, int(round(window_s / clock.tick_s)))
     all_keys = _voxel_keys(tr[:, 1], tr[:, 2], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
     changed_all = p_changes(tr[:, 0], all_keys[:, :2], tr[:, 3], final_cols, static_cols)
@@ -211,41 +232,69 @@ def find_events(
         labels = _group(keys, tr[idx, 3], window, max(1, int(round(link_m / resolution))))
         for lab in np.unique(labels):
             m = labels == lab
-            if m.sum() >= min_voxels:
-                groups.append((kind, tr[idx[m]], keys[m], changed_all[idx[m]]))
+            g_keys, g_changed = keys[m], changed_all[idx[m]]
+            p_cells = len(np.unique(g_keys[g_changed, :2], axis=0)) if g_changed.any() else 0
+            if m.sum() >= min_voxels or (min_p_cells > 0 and p_cells >= min_p_cells):
+                groups.append((kind, tr[idx[m]], g_keys, g_changed))
+            else:
+                dropped[KIND_NAME[kind]] += 1
+                dropped["voxels"] += int(m.sum())
+    if filtered is not None:
+        filtered.update(dropped)
     groups.sort(key=lambda g: (int(g[1][:, 3].min()), g[0]))
     for eid, (kind, rows, keys, changed) in enumerate(groups, start=1):
-        ticks, since = rows[:, 3], rows[:, 4]
-        known = since >= 0
-        # per voxel: from the start of the first tick of its streak to the end of its crossing tick
-        lat = (ticks[known] - since[known] + 1) * clock.tick_s
-        lo = keys.min(axis=0) * resolution
-        hi = (keys.max(axis=0) + 1) * resolution
-        centroid = (keys.mean(axis=0) + 0.5) * resolution
-        t_start = float(clock.start(since[known].min())) if known.any() else None
-        t_in_map = float(clock.end(ticks[changed].min())) if changed.any() else None
-        ev = {
-            "id": eid,
-            "kind": KIND_NAME[kind],
-            "t_start_s": t_start,
-            "t_in_map_s": t_in_map,
-            "latency_s": t_in_map - t_start if t_start is not None and t_in_map is not None else None,
-            "latency_median_s": float(np.median(lat)) if len(lat) else None,
-            "latency_min_s": float(lat.min()) if len(lat) else None,
-            "latency_max_s": float(lat.max()) if len(lat) else None,
-            "planner_latency_s": None,
-            "t_lt_s": float(clock.end(ticks.min())),
-            "t_in_map_last_s": float(clock.end(ticks[changed].max())) if changed.any() else None,
-            "voxels": int(len(keys)),
-            "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
-            "p_cells": int(len({(int(a), int(b)) for a, b in keys[changed, :2]})),
-            "centroid": [float(v) for v in centroid],
-            "extent_min": [float(v) for v in lo],
-            "extent_max": [float(v) for v in hi],
-        }
-        events.append(ev)
+        events.append(_event(eid, kind, rows, keys, changed, resolution, clock))
         members[eid] = (rows[:, 1] * 512 + rows[:, 2]).astype(np.int64)
     return events, members
+
+
+def _event(eid: int, kind: int, rows: np.ndarray, keys: np.ndarray, changed: np.ndarray, resolution: float,
+           clock: TickClock) -> dict:  # fmt: skip
+    """One event's row (see the module's docstring for the times and latencies)."""
+    ticks, since = rows[:, 3], rows[:, 4]
+    known = since >= 0
+    # per voxel: from the start of the first tick of its streak to the end of its crossing tick
+    voxel_lat = (ticks[known] - since[known] + 1) * clock.tick_s
+    cell_lat = np.zeros(0)
+    t_start = float(clock.start(since[known].min())) if known.any() else None
+    t_in_map = t_in_map_last = None
+    if changed.any():
+        cols = keys[:, 0] * (1 << 32) + keys[:, 1]
+        ch_cols = np.unique(cols[changed])
+        # per changed cell: its first P change (end of tick) and its voxels' first streak start
+        first_change = {int(c): int(ticks[changed & (cols == c)].min()) for c in ch_cols}
+        starts = {}
+        for c, s_, ok in zip(cols.tolist(), since.tolist(), known.tolist()):
+            if ok and c in first_change:
+                starts[c] = min(starts.get(c, s_), s_)
+        cell_lat = np.array([(first_change[c] - starts[c] + 1) * clock.tick_s for c in starts])
+        t_in_map = float(clock.end(ticks[changed].min()))
+        t_in_map_last = float(clock.end(ticks[changed].max()))
+        if starts:
+            t_start = float(clock.start(min(starts.values())))
+    lo = keys.min(axis=0) * resolution
+    hi = (keys.max(axis=0) + 1) * resolution
+    centroid = (keys.mean(axis=0) + 0.5) * resolution
+    return {
+        "id": eid,
+        "kind": KIND_NAME[kind],
+        "t_start_s": t_start,
+        "t_in_map_s": t_in_map,
+        "t_in_map_last_s": t_in_map_last,
+        "latency_s": t_in_map - t_start if t_start is not None and t_in_map is not None else None,
+        "cell_latency_min_s": float(cell_lat.min()) if len(cell_lat) else None,
+        "cell_latency_median_s": float(np.median(cell_lat)) if len(cell_lat) else None,
+        "cell_latency_max_s": float(cell_lat.max()) if len(cell_lat) else None,
+        "voxel_lt_latency_median_s": float(np.median(voxel_lat)) if len(voxel_lat) else None,
+        "planner_latency_s": None,
+        "t_lt_s": float(clock.end(ticks.min())),
+        "voxels": int(len(keys)),
+        "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
+        "p_cells": int(len({(int(a), int(b)) for a, b in keys[changed, :2]})),
+        "centroid": [float(v) for v in centroid],
+        "extent_min": [float(v) for v in lo],
+        "extent_max": [float(v) for v in hi],
+    }
 
 
 def event_history(
