@@ -722,9 +722,12 @@ class Replay:
         k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, lmap.resolution)
         lt_keys = lmap.occupied_keys("LT")
         final_cols = lt_keys[(lt_keys[:, 2] >= k_lo) & (lt_keys[:, 2] <= k_hi), :2]
+        rc = self.cfg.replay
+        filtered: dict = {}
         events, members = find_events(
             lmap.events.transitions, lmap.D.block_coords[: lmap.D.n_blocks], lmap.resolution, clock,
-            window_s=self.cfg.replay.event_window_s, link_m=self.cfg.replay.event_link_m,
+            window_s=rc.event_window_s, link_m=rc.event_link_m, min_voxels=rc.event_min_voxels,
+            min_p_cells=rc.event_min_p_cells, filtered=filtered,
             final_cols=final_cols, static_cols=lambda cols: static_fills(lmap, cols),
         )  # fmt: skip
         if self.tracker is not None:
@@ -746,6 +749,8 @@ class Replay:
             "count": len(events),
             "appear": sum(e["kind"] == "appear" for e in events),
             "disappear": sum(e["kind"] == "disappear" for e in events),
+            # groups below event_min_voxels that changed fewer than event_min_p_cells cells of P
+            "filtered": {**filtered, "min_voxels": rc.event_min_voxels, "min_p_cells": rc.event_min_p_cells},
             "add_latency_s": percentiles(lat["add"]),
             "remove_latency_s": percentiles(lat["remove"]),
             "planner_latency_s": percentiles(lat["planner"]) if self.tracker is not None else None,
@@ -800,7 +805,7 @@ class Replay:
             map3d={"centers": coord_to_pos(keys, lmap.resolution), "values": lmap.values("LT", keys),
                    "resolution": lmap.resolution,
                    "static_centers": coord_to_pos(static_keys, lmap.resolution) if static_keys is not None else None,
-                   "title": "final map: long-term voxels by height, static in grey"},
+                   "title": None},
         )  # fmt: skip
 
     def _event_cells(self) -> dict[int, np.ndarray]:
