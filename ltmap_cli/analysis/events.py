@@ -44,7 +44,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-APPEAR, DISAPPEAR = 1, 2
+from ..core.layers import TR_APPEAR, TR_BLOCK, TR_DISAPPEAR, TR_KIND, TR_OFF, TR_SINCE, TR_TICK
+
+APPEAR, DISAPPEAR = TR_APPEAR, TR_DISAPPEAR
 KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}
 
 CSV_COLUMNS = [
@@ -221,15 +223,15 @@ def find_events(
     members: dict[int, np.ndarray] = {}
     dropped = {"appear": 0, "disappear": 0, "voxels": 0}
     window = max(1, int(round(window_s / clock.tick_s)))
-    all_keys = _voxel_keys(tr[:, 1], tr[:, 2], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
-    changed_all = p_changes(tr[:, 0], all_keys[:, :2], tr[:, 3], final_cols, static_cols)
+    all_keys = _voxel_keys(tr[:, TR_BLOCK], tr[:, TR_OFF], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
+    changed_all = p_changes(tr[:, TR_KIND], all_keys[:, :2], tr[:, TR_TICK], final_cols, static_cols)
     groups = []
     for kind in (APPEAR, DISAPPEAR):
-        idx = np.flatnonzero(tr[:, 0] == kind)
+        idx = np.flatnonzero(tr[:, TR_KIND] == kind)
         if not len(idx):
             continue
         keys = all_keys[idx]
-        labels = _group(keys, tr[idx, 3], window, max(1, int(round(link_m / resolution))))
+        labels = _group(keys, tr[idx, TR_TICK], window, max(1, int(round(link_m / resolution))))
         for lab in np.unique(labels):
             m = labels == lab
             g_keys, g_changed = keys[m], changed_all[idx[m]]
@@ -244,14 +246,14 @@ def find_events(
     groups.sort(key=lambda g: (int(g[1][:, 3].min()), g[0]))
     for eid, (kind, rows, keys, changed) in enumerate(groups, start=1):
         events.append(_event(eid, kind, rows, keys, changed, resolution, clock))
-        members[eid] = (rows[:, 1] * 512 + rows[:, 2]).astype(np.int64)
+        members[eid] = (rows[:, TR_BLOCK] * 512 + rows[:, TR_OFF]).astype(np.int64)
     return events, members
 
 
 def _event(eid: int, kind: int, rows: np.ndarray, keys: np.ndarray, changed: np.ndarray, resolution: float,
            clock: TickClock) -> dict:  # fmt: skip
     """One event's row (see the module's docstring for the times and latencies)."""
-    ticks, since = rows[:, 3], rows[:, 4]
+    ticks, since = rows[:, TR_TICK], rows[:, TR_SINCE]
     known = since >= 0
     # per voxel: from the start of the first tick of its streak to the end of its crossing tick
     voxel_lat = (ticks[known] - since[known] + 1) * clock.tick_s
