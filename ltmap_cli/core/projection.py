@@ -64,21 +64,33 @@ class FootprintTrace:
         self.radius = float(radius)
         self.resolution = float(resolution)
         self.cells = np.zeros((0, 2), dtype=np.int64)
+        self._keys = np.zeros(0, dtype=np.int64)  # the cells packed, sorted
         self._n = 0
         self._last: np.ndarray | None = None
 
     def update(self, path) -> np.ndarray:
         """The cells (M, 2) of ``path``: a sequence of rows whose last two values are x, y in
-        metres (e.g. (t, x, y)), the same sequence as before with rows appended."""
+        metres (e.g. (t, x, y)), the same sequence as before with rows appended. Cost: the new
+        poses and a merge into the sorted cells (a long drive has 10^5 cells: no sort of them)."""
         if len(path) > self._n:
             new = np.asarray(path[self._n :], dtype=np.float64).reshape(len(path) - self._n, -1)[:, -2:]
             pts = new if self._last is None else np.concatenate([self._last, new])
             cells = footprint_cells(pts, self.radius, self.resolution)
             if len(cells):
-                self.cells = np.unique(np.concatenate([self.cells, cells]), axis=0)
+                keys = np.unique(((cells[:, 0] + _FP_OFF) << 32) | (cells[:, 1] + _FP_OFF))
+                pos = np.searchsorted(self._keys, keys)
+                known = np.zeros(len(keys), dtype=bool)
+                if len(self._keys):
+                    known = (pos < len(self._keys)) & (self._keys[np.minimum(pos, len(self._keys) - 1)] == keys)
+                if not known.all():
+                    self._keys = np.insert(self._keys, pos[~known], keys[~known])
+                    self.cells = np.stack([(self._keys >> 32) - _FP_OFF, (self._keys & 0xFFFFFFFF) - _FP_OFF], axis=1)
             self._last = new[-1:]
             self._n = len(path)
         return self.cells
+
+
+_FP_OFF = np.int64(1 << 30)  # packed footprint cells: (i + off) << 32 | (j + off)
 
 
 @dataclass
