@@ -622,6 +622,7 @@ def _place_labels(ax, boxes: list[tuple[str, tuple[float, float, float, float]]]
     label placed before them and stay inside the axes: [(text, (x, y) display anchor of the label's
     lower-left corner) or None when no place is free], in the order given (place the important
     ones first)."""
+    ax.apply_aspect()  # the axes box as it will be drawn (equal aspect shrinks it)
     to_px = ax.transData.transform
     bb = ax.get_window_extent()
     placed: list[tuple[float, float, float, float]] = []
