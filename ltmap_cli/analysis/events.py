@@ -261,19 +261,23 @@ def _event(eid: int, kind: int, rows: np.ndarray, keys: np.ndarray, changed: np.
     t_start = float(clock.start(since[known].min())) if known.any() else None
     t_in_map = t_in_map_last = None
     if changed.any():
-        cols = keys[:, 0] * (1 << 32) + keys[:, 1]
+        # per changed cell: its first P change and the first streak start of the event's voxels in it
+        cols = ((keys[:, 0] + _BOFF) << 32) | (keys[:, 1] + _BOFF)
         ch_cols = np.unique(cols[changed])
-        # per changed cell: its first P change (end of tick) and its voxels' first streak start
-        first_change = {int(c): int(ticks[changed & (cols == c)].min()) for c in ch_cols}
-        starts = {}
-        for c, s_, ok in zip(cols.tolist(), since.tolist(), known.tolist()):
-            if ok and c in first_change:
-                starts[c] = min(starts.get(c, s_), s_)
-        cell_lat = np.array([(first_change[c] - starts[c] + 1) * clock.tick_s for c in starts])
+        pos = np.minimum(np.searchsorted(ch_cols, cols), len(ch_cols) - 1)
+        in_ch = ch_cols[pos] == cols
+        big = np.iinfo(np.int64).max
+        first_change = np.full(len(ch_cols), big, dtype=np.int64)
+        np.minimum.at(first_change, pos[changed], ticks[changed])
+        first_seen = np.full(len(ch_cols), big, dtype=np.int64)
+        ok = in_ch & known
+        np.minimum.at(first_seen, pos[ok], since[ok])
+        seen = first_seen < big
+        cell_lat = (first_change[seen] - first_seen[seen] + 1) * clock.tick_s
         t_in_map = float(clock.end(ticks[changed].min()))
         t_in_map_last = float(clock.end(ticks[changed].max()))
-        if starts:
-            t_start = float(clock.start(min(starts.values())))
+        if seen.any():
+            t_start = float(clock.start(first_seen[seen].min()))
     lo = keys.min(axis=0) * resolution
     hi = (keys.max(axis=0) + 1) * resolution
     centroid = (keys.mean(axis=0) + 0.5) * resolution
