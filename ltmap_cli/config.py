@@ -36,6 +36,7 @@ class ReplayConfig:
     event_link_m: float = 0.15  # ... and this close in space (chained) are one event
     event_min_voxels: int = 4  # an event is a group of at least this many voxels ...
     event_min_p_cells: int = 3  # ... or one that changed this many cells of P (0: no); others are counted
+    event_drop_surface: bool = True  # a group that only moves the boundary of what stays (a wall) by a cell is no event
     plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
     robot_radius: float = 0.2  # m, obstacle inflation for the planner
     plan_period: float = 0.0  # s of log time between plans (0: every tick)

@@ -35,7 +35,7 @@ def test_small_groups_that_leave_p_as_it_was_are_counted_not_reported():
     events, members = find_events(tr, COORDS, 0.05, CLOCK, link_m=0.05, min_voxels=4, min_p_cells=3,
                                   final_cols=final, filtered=filtered)  # fmt: skip
     assert [(e["kind"], e["voxels"], e["p_cells"]) for e in events] == [("appear", 5, 1), ("disappear", 3, 3)]
-    assert filtered == {"appear": 1, "disappear": 2, "voxels": 4}
+    assert filtered == {"appear": 1, "disappear": 2, "voxels": 4, "surface": 0}
     # with the defaults of find_events every group is an event
     assert len(find_events(tr, COORDS, 0.05, CLOCK, link_m=0.05, final_cols=final)[0]) == 5
     # min_p_cells 0: a P change alone does not make an event
@@ -86,3 +86,89 @@ def test_settings_are_checked():
     cfg.replay.event_min_voxels = 0
     with pytest.raises(Exception, match="event_min_voxels"):
         cfg.validate()
+
+
+def test_column_counts_equal_a_replay_of_the_transitions():
+    from ltmap_cli.analysis.events import ColumnCounts
+
+    rng = np.random.default_rng(4)
+    n = 400
+    cols = rng.integers(0, 6, (n, 2))
+    ticks = rng.integers(0, 50, n)
+    kind = rng.choice([1, 2], n)
+    # a consistent history: start every column with 30 voxels, apply in tick order, end = final
+    start = {(a, b): 30 for a in range(6) for b in range(6)}  # never below 0
+    order = np.argsort(ticks, kind="stable")
+    cur = dict(start)
+    for r in order:
+        c = tuple(cols[r])
+        cur[c] += 1 if kind[r] == 1 else -1
+    final_cols = np.array([c for c, v in cur.items() for _ in range(max(v, 0))])
+    counts = ColumnCounts(kind, cols, ticks, final_cols)
+    for t in (-1, 0, 7, 25, 49, 60):
+        cur = dict(start)
+        for r in order:
+            if ticks[r] <= t:
+                cur[tuple(cols[r])] += 1 if kind[r] == 1 else -1
+        q = np.array(list(cur))
+        got = counts.count(q, np.full(len(q), t))
+        assert got.tolist() == [max(cur[tuple(c)], 0) for c in q], t
+    assert counts.count(np.array([[40, 40]]), np.array([3])).tolist() == [0]  # a column never seen
+
+
+def _strip(i0, i1, j):
+    return [(i, j) for i in range(i0, i1)]
+
+
+def test_a_wall_thinned_by_a_cell_is_surface_an_object_leaving_is_not():
+    from ltmap_cli.analysis.events import ColumnCounts, surface_only
+
+    wall = _strip(0, 20, 10)  # stays occupied all along (row j = 10)
+    surface = _strip(4, 12, 9)  # the cells in front of it, leaving at tick 50
+    box = [(i, j) for i in range(14, 18) for j in range(6, 10)]  # a box against the wall, leaving
+    free_box = [(i, j) for i in range(3, 7) for j in range(1, 4)]  # a box in the open, leaving
+    cols = np.array(surface + box + free_box)
+    kind = np.full(len(cols), 2)
+    ticks = np.concatenate([np.full(len(surface), 50), 60 + np.arange(len(box)) % 3, np.full(len(free_box), 70)])
+    final = np.array(wall)
+    counts = ColumnCounts(kind, cols, ticks, final)
+    n_s, n_b = len(surface), len(box)
+    assert surface_only(2, np.array(surface), ticks[:n_s], counts)
+    assert not surface_only(2, np.array(box), ticks[n_s:n_s + n_b], counts)  # its middle frees too
+    assert not surface_only(2, np.array(free_box), ticks[n_s + n_b:], counts)
+    # the same wall given by the static map instead of LT
+    counts_s = ColumnCounts(kind, cols, ticks, None)
+    in_wall = np.array(wall)
+    static = lambda c: (c[:, None, :] == in_wall[None]).all(axis=2).any(axis=1)  # noqa: E731
+    assert surface_only(2, np.array(surface), ticks[:n_s], counts_s, static)
+    assert not surface_only(2, np.array(surface), ticks[:n_s], counts_s)
+    # appear: the surface cells coming back in front of the wall are surface; a box placed is not
+    back = ColumnCounts(np.full(n_s, 1), np.array(surface), np.full(n_s, 80), np.array(wall + surface))
+    assert surface_only(1, np.array(surface), np.full(n_s, 80), back)
+    placed = ColumnCounts(np.full(len(free_box), 1), np.array(free_box), np.full(len(free_box), 5),
+                          np.array(wall + free_box))  # fmt: skip
+    assert not surface_only(1, np.array(free_box), np.full(len(free_box), 5), placed)
+
+
+def _rows(items):
+    """Transition rows and block coordinates for (kind, (i, j, k), tick, since) items."""
+    keys = np.array([k for _, k, _, _ in items])
+    blocks, inv = np.unique(keys // 8, axis=0, return_inverse=True)
+    off = ((keys[:, 0] % 8) << 6) | ((keys[:, 1] % 8) << 3) | (keys[:, 2] % 8)
+    rows = np.array([[kind, b, o, t, s_] for (kind, _, t, s_), b, o in zip(items, inv.ravel(), off)])
+    return rows, blocks.astype(np.int32)
+
+
+def test_find_events_drops_surface_groups_and_counts_them():
+    items = [(2, (i, 9, 2), 50, 40) for i in range(4, 12)]  # in front of a wall at j = 10: leave
+    items += [(2, (i, j, 2), 70, 60) for i in range(3, 7) for j in range(1, 4)]  # a box in the open
+    rows, blocks = _rows(items)
+    final = np.array([(i, 10) for i in range(0, 20)])  # the wall stays
+    filtered = {}
+    events, _ = find_events(rows, blocks, 0.05, CLOCK, link_m=0.05, min_voxels=4, min_p_cells=3,
+                            final_cols=final, filtered=filtered, drop_surface=True)  # fmt: skip
+    assert [e["voxels"] for e in events] == [12]
+    assert filtered == {"appear": 0, "disappear": 1, "voxels": 8, "surface": 1}
+    events, _ = find_events(rows, blocks, 0.05, CLOCK, link_m=0.05, min_voxels=4, min_p_cells=3,
+                            final_cols=final)  # fmt: skip
+    assert sorted(e["voxels"] for e in events) == [8, 12]

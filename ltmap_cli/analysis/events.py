@@ -196,6 +196,73 @@ def p_changes(
     return out
 
 
+def _pack(cols: np.ndarray) -> np.ndarray:
+    cols = np.asarray(cols, dtype=np.int64).reshape(-1, 2)
+    return ((cols[:, 0] + _BOFF) << 32) | (cols[:, 1] + _BOFF)
+
+
+class ColumnCounts:
+    """LT's occupied band voxels per column after any tick, rebuilt from the transitions and the
+    final map (as ``p_changes`` does): ``count(cols, ticks)``, for any column."""
+
+    def __init__(self, kind, cols, ticks, final_cols):
+        packed = _pack(cols)
+        ticks = np.asarray(ticks, dtype=np.int64)
+        delta = np.where(np.asarray(kind) == APPEAR, 1, -1).astype(np.int64)
+        fc = np.zeros((0, 2), np.int64) if final_cols is None else final_cols
+        self.final_keys, self.final_n = np.unique(_pack(fc), return_counts=True)
+        order = np.lexsort((ticks, packed))
+        self.tp, self.tt = packed[order], ticks[order]
+        self.ucols, rank = np.unique(self.tp, return_inverse=True)
+        self.span = np.int64(max(int(self.tt.max()), 0) + 3) if len(self.tt) else np.int64(3)
+        self.ck = rank.astype(np.int64).ravel() * self.span + (self.tt + 1)  # sorted: (column, tick)
+        d = delta[order]
+        rev = np.cumsum(d[::-1])[::-1]  # sum of d[i:]
+        end = np.searchsorted(self.tp, self.tp, side="right")
+        self.suffix = rev - np.where(end < len(d), rev[np.minimum(end, len(d) - 1)], 0)  # within its column
+
+    def count(self, cols, ticks) -> np.ndarray:
+        """Occupied band voxels of LT in each column after the transitions of its tick."""
+        qp = _pack(cols)
+        qt = np.asarray(ticks, dtype=np.int64)
+        out = np.zeros(len(qp), dtype=np.int64)
+        if len(self.final_keys):
+            pos = np.minimum(np.searchsorted(self.final_keys, qp), len(self.final_keys) - 1)
+            ok = self.final_keys[pos] == qp
+            out[ok] = self.final_n[pos[ok]]
+        if len(self.tp):
+            r = np.minimum(np.searchsorted(self.ucols, qp), len(self.ucols) - 1)
+            has = self.ucols[r] == qp
+            key = r.astype(np.int64) * self.span + (np.clip(qt, -1, self.span - 3) + 1)
+            nxt = np.minimum(np.searchsorted(self.ck, key, side="right"), len(self.tp) - 1)
+            later = has & (self.tp[nxt] == qp) & (self.tt[nxt] > qt)
+            out = out - np.where(later, self.suffix[nxt], 0)  # undo what comes after the tick
+        return np.maximum(out, 0)
+
+
+_NEIGHBOURS = np.array([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj], dtype=np.int64)
+
+
+def surface_only(kind: int, cells: np.ndarray, ticks: np.ndarray, counts: ColumnCounts,
+                 static_cols: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:  # fmt: skip
+    """Whether an event's changed cells (M, 2), changed at ``ticks``, only move the boundary of
+    something that stays: each has a neighbour cell (8-connected), not one of the event's, that is
+    occupied in P before the event's first change (appear) or after its last (disappear). A wall
+    surface cell flickering under sensor noise, or a wall thinned by a cell where a moving robot
+    sees it at a grazing angle, is such an event; an object that leaves frees cells with no such
+    neighbour (its middle, its far side), and one that comes fills them."""
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+    if not len(cells):
+        return False
+    nb = (cells[:, None, :] + _NEIGHBOURS[None, :, :]).reshape(-1, 2)
+    at = int(np.min(ticks)) - 1 if kind == APPEAR else int(np.max(ticks))
+    occ = counts.count(nb, np.full(len(nb), at)) > 0
+    if static_cols is not None:
+        occ |= np.asarray(static_cols(nb), dtype=bool)
+    occ &= ~np.isin(_pack(nb), _pack(cells))
+    return bool(occ.reshape(len(cells), -1).any(axis=1).all())
+
+
 def find_events(
     transitions: np.ndarray,
     block_coords: np.ndarray,
@@ -208,6 +275,7 @@ def find_events(
     static_cols: Callable[[np.ndarray], np.ndarray] | None = None,
     min_p_cells: int = 0,
     filtered: dict | None = None,
+    drop_surface: bool = False,
 ) -> tuple[list[dict], dict[int, np.ndarray]]:
     """(events sorted by time, {event id: D voxel ids (block * 512 + offset)}).
 
@@ -216,15 +284,18 @@ def find_events(
     ``final_cols`` and ``static_cols``: see ``p_changes`` (what P looked like, for ``t_in_map_s``).
     A group is an event when it has ``min_voxels`` voxels or more, or changed ``min_p_cells``
     cells of P or more (the replay passes ``replay.event_min_voxels`` / ``event_min_p_cells``;
-    the defaults here keep every group); ``filtered``, when given, receives the counts of the others: {"appear": n,
-    "disappear": n, "voxels": n}."""
+    the defaults here keep every group); with ``drop_surface``, a group whose changed cells only
+    move the boundary of something that stays (``surface_only``) is not an event either.
+    ``filtered``, when given, receives the counts of the others: {"appear": n, "disappear": n,
+    "voxels": n, "surface": n of them left out as surface only}."""
     tr = np.asarray(transitions, dtype=np.int64).reshape(-1, 5)
     events: list[dict] = []
     members: dict[int, np.ndarray] = {}
-    dropped = {"appear": 0, "disappear": 0, "voxels": 0}
+    dropped = {"appear": 0, "disappear": 0, "voxels": 0, "surface": 0}
     window = max(1, int(round(window_s / clock.tick_s)))
     all_keys = _voxel_keys(tr[:, TR_BLOCK], tr[:, TR_OFF], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
     changed_all = p_changes(tr[:, TR_KIND], all_keys[:, :2], tr[:, TR_TICK], final_cols, static_cols)
+    counts = ColumnCounts(tr[:, TR_KIND], all_keys[:, :2], tr[:, TR_TICK], final_cols) if drop_surface else None
     groups = []
     for kind in (APPEAR, DISAPPEAR):
         idx = np.flatnonzero(tr[:, TR_KIND] == kind)
@@ -236,7 +307,13 @@ def find_events(
             m = labels == lab
             g_keys, g_changed = keys[m], changed_all[idx[m]]
             p_cells = len(np.unique(g_keys[g_changed, :2], axis=0)) if g_changed.any() else 0
-            if m.sum() >= min_voxels or (min_p_cells > 0 and p_cells >= min_p_cells):
+            keep = m.sum() >= min_voxels or (min_p_cells > 0 and p_cells >= min_p_cells)
+            if keep and counts is not None and p_cells:
+                g_ticks = tr[idx[m], TR_TICK][g_changed]
+                if surface_only(kind, g_keys[g_changed, :2], g_ticks, counts, static_cols):
+                    keep = False
+                    dropped["surface"] += 1
+            if keep:
                 groups.append((kind, tr[idx[m]], g_keys, g_changed))
             else:
                 dropped[KIND_NAME[kind]] += 1
