@@ -727,7 +727,7 @@ class Replay:
         events, members = find_events(
             lmap.events.transitions, lmap.D.block_coords[: lmap.D.n_blocks], lmap.resolution, clock,
             window_s=rc.event_window_s, link_m=rc.event_link_m, min_voxels=rc.event_min_voxels,
-            min_p_cells=rc.event_min_p_cells, filtered=filtered,
+            min_p_cells=rc.event_min_p_cells, filtered=filtered, drop_surface=rc.event_drop_surface,
             final_cols=final_cols, static_cols=lambda cols: static_fills(lmap, cols),
         )  # fmt: skip
         if self.tracker is not None:
@@ -750,7 +750,8 @@ class Replay:
             "appear": sum(e["kind"] == "appear" for e in events),
             "disappear": sum(e["kind"] == "disappear" for e in events),
             # groups below event_min_voxels that changed fewer than event_min_p_cells cells of P
-            "filtered": {**filtered, "min_voxels": rc.event_min_voxels, "min_p_cells": rc.event_min_p_cells},
+            "filtered": {**filtered, "min_voxels": rc.event_min_voxels, "min_p_cells": rc.event_min_p_cells,
+                         "drop_surface": rc.event_drop_surface},
             "add_latency_s": percentiles(lat["add"]),
             "remove_latency_s": percentiles(lat["remove"]),
             "planner_latency_s": percentiles(lat["planner"]) if self.tracker is not None else None,
