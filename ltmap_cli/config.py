@@ -81,6 +81,9 @@ class ReplayConfig:
     max_static_mb: float = DEFAULT_MAX_STATIC_MB  # memory S may take on the voxel lattice; more is refused
     event_window_s: float = 5.0  # voxels crossing LT's threshold this close in time ...
     event_link_m: float = 0.15  # ... and this close in space (chained) are one event
+    event_min_voxels: int = 4  # an event is a group of at least this many voxels ...
+    event_min_p_cells: int = 3  # ... or one that changed this many cells of P (0: no); others are counted
+    event_drop_surface: bool = True  # a group that only moves the boundary of what stays (a wall) by a cell is no event
     plan_goal: list[float] = field(default_factory=list)  # [x, y] in the fixed frame: time the planner's reaction
     robot_radius: float = 0.2  # m, obstacle inflation for the planner
     plan_period: float = 0.0  # s of log time between plans (0: every tick)
@@ -126,6 +129,10 @@ class Config:
             problems.append("replay.map_period must be >= 0")
         if self.replay.scan_fused_window_s < 0:
             problems.append("replay.scan_fused_window_s must be >= 0")
+        if self.replay.event_min_voxels < 1:
+            problems.append("replay.event_min_voxels must be >= 1")
+        if self.replay.event_min_p_cells < 0:
+            problems.append("replay.event_min_p_cells must be >= 0 (0: a P change alone does not make an event)")
         if self.replay.robot_radius < 0:
             problems.append("replay.robot_radius must be >= 0")
         if self.replay.depth_outlier_radius <= 0:

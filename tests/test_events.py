@@ -131,8 +131,11 @@ def test_event_latency_is_first_sight_to_first_in_map():
     (e,) = events
     assert e["t_start_s"] == pytest.approx(1.0 + 5 * 0.2) and e["t_in_map_s"] == pytest.approx(1.0 + 13 * 0.2)
     assert e["latency_s"] == pytest.approx((13 - 5) * 0.2)
-    assert e["latency_median_s"] == pytest.approx((16 + 5) / 2 * 0.2)
-    assert (e["latency_min_s"], e["latency_max_s"]) == pytest.approx((5 * 0.2, 16 * 0.2))
+    # per changed cell (each voxel has its own column here): 16 and 5 ticks; latency_s between
+    assert e["cell_latency_median_s"] == pytest.approx((16 + 5) / 2 * 0.2)
+    assert (e["cell_latency_min_s"], e["cell_latency_max_s"]) == pytest.approx((5 * 0.2, 16 * 0.2))
+    assert e["cell_latency_min_s"] <= e["latency_s"] <= e["cell_latency_max_s"]
+    assert e["voxel_lt_latency_median_s"] == pytest.approx((16 + 5) / 2 * 0.2)
 
 
 def _brute_labels(keys, ticks, window, link):

@@ -13,14 +13,27 @@ that stays, or a voxel entering LT in a column something else already fills, lea
 it was. So the column counts of LT's occupied band voxels are rebuilt tick by tick from the
 transitions and the final map, and a transition *changes P* when its column goes from no occupied
 voxel to some (appear) or from some to none (disappear), and the static map does not fill it.
-An event's latency (the issue's definition) runs from the start of the first tick any of its
-voxels began its streak (``t_start_s``) to the end of the first tick at which one of its
-transitions changed P (``t_in_map_s``), so an obstacle seen continuously from its first tick
-enters after exactly st_rise_s. ``p_cells`` counts the event's cells whose P changed; an event
-with none (LT changed, P did not) has no ``t_in_map_s`` and no latency. ``t_lt_s`` is the end of
-the first tick any of its voxels crossed LT's threshold. Per voxel, (crossing tick - streak start
-+ 1) x tick; their median, min and max are kept too (``latency_median_s`` etc.: a large object
-seen bit by bit spreads them). Times are seconds of log time since the log's first message.
+
+Events are objects: a group is reported when it has at least ``min_voxels`` voxels or changed at
+least ``min_p_cells`` cells of P; the others (a voxel or three of a wall surface flickering under
+sensor noise, a table leg voxel under the top) are not reported but counted (``filtered``).
+
+Times and latencies (seconds of log time since the log's first message; a tick spans
+[start, end)):
+- ``t_in_map_s``: the end of the first tick at which one of its transitions changed P (None when
+  none did: LT changed, P did not; such an event has no latency); ``t_in_map_last_s`` the last.
+- ``t_start_s``: the start of the first tick any voxel of the event began its streak, counting
+  only the voxels in the cells whose P it changed when there are some (what P shows), else all.
+- ``latency_s`` = ``t_in_map_s - t_start_s`` (SPEC 6's add / remove latency): an obstacle seen
+  continuously from its first tick enters P after exactly st_rise_s.
+- ``cell_latency_min_s`` / ``_median_s`` / ``_max_s``: per cell of P the event changed, from the
+  start of the first tick one of the event's voxels in that cell began its streak to the end of
+  the tick the cell changed. ``latency_s`` always lies within their min and max (the first cell
+  to change and the first cell seen bound it); a large object seen bit by bit spreads them.
+- ``voxel_lt_latency_median_s``: per voxel, from its streak's first tick to the end of the tick
+  its LT crossed the threshold (what st_rise_s and lt_fall_s govern, P or not).
+- ``t_lt_s``: the end of the first tick any of its voxels crossed LT's threshold.
+``p_cells`` counts the cells of P the event changed.
 """
 
 from __future__ import annotations
@@ -31,13 +44,16 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-APPEAR, DISAPPEAR = 1, 2
+from ..core.layers import TR_APPEAR, TR_BLOCK, TR_DISAPPEAR, TR_KIND, TR_OFF, TR_SINCE, TR_TICK
+
+APPEAR, DISAPPEAR = TR_APPEAR, TR_DISAPPEAR
 KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}
 
 CSV_COLUMNS = [
-    "id", "kind", "t_start_s", "t_in_map_s", "latency_s", "latency_median_s", "latency_min_s", "latency_max_s",
-    "planner_latency_s", "t_lt_s", "voxels", "cells", "p_cells", "centroid_x", "centroid_y", "centroid_z",
-    "min_x", "min_y", "min_z", "max_x", "max_y", "max_z",
+    "id", "kind", "t_start_s", "t_in_map_s", "t_in_map_last_s", "latency_s", "cell_latency_min_s",
+    "cell_latency_median_s", "cell_latency_max_s", "voxel_lt_latency_median_s", "planner_latency_s", "t_lt_s",
+    "voxels", "cells", "p_cells", "centroid_x", "centroid_y", "centroid_z", "min_x", "min_y", "min_z", "max_x",
+    "max_y", "max_z",
 ]  # fmt: skip
 
 
@@ -180,6 +196,73 @@ def p_changes(
     return out
 
 
+def _pack(cols: np.ndarray) -> np.ndarray:
+    cols = np.asarray(cols, dtype=np.int64).reshape(-1, 2)
+    return ((cols[:, 0] + _BOFF) << 32) | (cols[:, 1] + _BOFF)
+
+
+class ColumnCounts:
+    """LT's occupied band voxels per column after any tick, rebuilt from the transitions and the
+    final map (as ``p_changes`` does): ``count(cols, ticks)``, for any column."""
+
+    def __init__(self, kind, cols, ticks, final_cols):
+        packed = _pack(cols)
+        ticks = np.asarray(ticks, dtype=np.int64)
+        delta = np.where(np.asarray(kind) == APPEAR, 1, -1).astype(np.int64)
+        fc = np.zeros((0, 2), np.int64) if final_cols is None else final_cols
+        self.final_keys, self.final_n = np.unique(_pack(fc), return_counts=True)
+        order = np.lexsort((ticks, packed))
+        self.tp, self.tt = packed[order], ticks[order]
+        self.ucols, rank = np.unique(self.tp, return_inverse=True)
+        self.span = np.int64(max(int(self.tt.max()), 0) + 3) if len(self.tt) else np.int64(3)
+        self.ck = rank.astype(np.int64).ravel() * self.span + (self.tt + 1)  # sorted: (column, tick)
+        d = delta[order]
+        rev = np.cumsum(d[::-1])[::-1]  # sum of d[i:]
+        end = np.searchsorted(self.tp, self.tp, side="right")
+        self.suffix = rev - np.where(end < len(d), rev[np.minimum(end, len(d) - 1)], 0)  # within its column
+
+    def count(self, cols, ticks) -> np.ndarray:
+        """Occupied band voxels of LT in each column after the transitions of its tick."""
+        qp = _pack(cols)
+        qt = np.asarray(ticks, dtype=np.int64)
+        out = np.zeros(len(qp), dtype=np.int64)
+        if len(self.final_keys):
+            pos = np.minimum(np.searchsorted(self.final_keys, qp), len(self.final_keys) - 1)
+            ok = self.final_keys[pos] == qp
+            out[ok] = self.final_n[pos[ok]]
+        if len(self.tp):
+            r = np.minimum(np.searchsorted(self.ucols, qp), len(self.ucols) - 1)
+            has = self.ucols[r] == qp
+            key = r.astype(np.int64) * self.span + (np.clip(qt, -1, self.span - 3) + 1)
+            nxt = np.minimum(np.searchsorted(self.ck, key, side="right"), len(self.tp) - 1)
+            later = has & (self.tp[nxt] == qp) & (self.tt[nxt] > qt)
+            out = out - np.where(later, self.suffix[nxt], 0)  # undo what comes after the tick
+        return np.maximum(out, 0)
+
+
+_NEIGHBOURS = np.array([(di, dj) for di in (-1, 0, 1) for dj in (-1, 0, 1) if di or dj], dtype=np.int64)
+
+
+def surface_only(kind: int, cells: np.ndarray, ticks: np.ndarray, counts: ColumnCounts,
+                 static_cols: Callable[[np.ndarray], np.ndarray] | None = None) -> bool:  # fmt: skip
+    """Whether an event's changed cells (M, 2), changed at ``ticks``, only move the boundary of
+    something that stays: each has a neighbour cell (8-connected), not one of the event's, that is
+    occupied in P before the event's first change (appear) or after its last (disappear). A wall
+    surface cell flickering under sensor noise, or a wall thinned by a cell where a moving robot
+    sees it at a grazing angle, is such an event; an object that leaves frees cells with no such
+    neighbour (its middle, its far side), and one that comes fills them."""
+    cells = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
+    if not len(cells):
+        return False
+    nb = (cells[:, None, :] + _NEIGHBOURS[None, :, :]).reshape(-1, 2)
+    at = int(np.min(ticks)) - 1 if kind == APPEAR else int(np.max(ticks))
+    occ = counts.count(nb, np.full(len(nb), at)) > 0
+    if static_cols is not None:
+        occ |= np.asarray(static_cols(nb), dtype=bool)
+    occ &= ~np.isin(_pack(nb), _pack(cells))
+    return bool(occ.reshape(len(cells), -1).any(axis=1).all())
+
+
 def find_events(
     transitions: np.ndarray,
     block_coords: np.ndarray,
@@ -190,62 +273,111 @@ def find_events(
     min_voxels: int = 1,
     final_cols: np.ndarray | None = None,
     static_cols: Callable[[np.ndarray], np.ndarray] | None = None,
+    min_p_cells: int = 0,
+    filtered: dict | None = None,
+    drop_surface: bool = False,
 ) -> tuple[list[dict], dict[int, np.ndarray]]:
     """(events sorted by time, {event id: D voxel ids (block * 512 + offset)}).
 
     ``transitions`` rows: (kind, D block, offset, tick, streak start tick) from
     ``LayeredMap.events.transitions``; ``block_coords`` the D grid's block coordinates;
-    ``final_cols`` and ``static_cols``: see ``p_changes`` (what P looked like, for ``t_in_map_s``)."""
+    ``final_cols`` and ``static_cols``: see ``p_changes`` (what P looked like, for ``t_in_map_s``).
+    A group is an event when it has ``min_voxels`` voxels or more, or changed ``min_p_cells``
+    cells of P or more (the replay passes ``replay.event_min_voxels`` / ``event_min_p_cells``;
+    the defaults here keep every group); with ``drop_surface``, a group whose changed cells only
+    move the boundary of something that stays (``surface_only``) is not an event either.
+    ``filtered``, when given, receives the counts of the others: {"appear": n, "disappear": n,
+    "voxels": n, "surface": n of them left out as surface only}."""
     tr = np.asarray(transitions, dtype=np.int64).reshape(-1, 5)
     events: list[dict] = []
     members: dict[int, np.ndarray] = {}
+    dropped = {"appear": 0, "disappear": 0, "voxels": 0, "surface": 0}
     window = max(1, int(round(window_s / clock.tick_s)))
-    all_keys = voxel_keys(tr[:, 1], tr[:, 2], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
-    changed_all = p_changes(tr[:, 0], all_keys[:, :2], tr[:, 3], final_cols, static_cols)
+    all_keys = voxel_keys(tr[:, TR_BLOCK], tr[:, TR_OFF], block_coords) if len(tr) else np.zeros((0, 3), dtype=np.int64)
+    changed_all = p_changes(tr[:, TR_KIND], all_keys[:, :2], tr[:, TR_TICK], final_cols, static_cols)
+    counts = ColumnCounts(tr[:, TR_KIND], all_keys[:, :2], tr[:, TR_TICK], final_cols) if drop_surface else None
     groups = []
     for kind in (APPEAR, DISAPPEAR):
-        idx = np.flatnonzero(tr[:, 0] == kind)
+        idx = np.flatnonzero(tr[:, TR_KIND] == kind)
         if not len(idx):
             continue
         keys = all_keys[idx]
-        labels = _group(keys, tr[idx, 3], window, max(1, int(round(link_m / resolution))))
+        labels = _group(keys, tr[idx, TR_TICK], window, max(1, int(round(link_m / resolution))))
         for lab in np.unique(labels):
             m = labels == lab
-            if m.sum() >= min_voxels:
-                groups.append((kind, tr[idx[m]], keys[m], changed_all[idx[m]]))
+            g_keys, g_changed = keys[m], changed_all[idx[m]]
+            p_cells = len(np.unique(g_keys[g_changed, :2], axis=0)) if g_changed.any() else 0
+            keep = m.sum() >= min_voxels or (min_p_cells > 0 and p_cells >= min_p_cells)
+            if keep and counts is not None and p_cells:
+                g_ticks = tr[idx[m], TR_TICK][g_changed]
+                if surface_only(kind, g_keys[g_changed, :2], g_ticks, counts, static_cols):
+                    keep = False
+                    dropped["surface"] += 1
+            if keep:
+                groups.append((kind, tr[idx[m]], g_keys, g_changed))
+            else:
+                dropped[KIND_NAME[kind]] += 1
+                dropped["voxels"] += int(m.sum())
+    if filtered is not None:
+        filtered.update(dropped)
     groups.sort(key=lambda g: (int(g[1][:, 3].min()), g[0]))
     for eid, (kind, rows, keys, changed) in enumerate(groups, start=1):
-        ticks, since = rows[:, 3], rows[:, 4]
-        known = since >= 0
-        # per voxel: from the start of the first tick of its streak to the end of its crossing tick
-        lat = (ticks[known] - since[known] + 1) * clock.tick_s
-        lo = keys.min(axis=0) * resolution
-        hi = (keys.max(axis=0) + 1) * resolution
-        centroid = (keys.mean(axis=0) + 0.5) * resolution
-        t_start = float(clock.start(since[known].min())) if known.any() else None
-        t_in_map = float(clock.end(ticks[changed].min())) if changed.any() else None
-        ev = {
-            "id": eid,
-            "kind": KIND_NAME[kind],
-            "t_start_s": t_start,
-            "t_in_map_s": t_in_map,
-            "latency_s": t_in_map - t_start if t_start is not None and t_in_map is not None else None,
-            "latency_median_s": float(np.median(lat)) if len(lat) else None,
-            "latency_min_s": float(lat.min()) if len(lat) else None,
-            "latency_max_s": float(lat.max()) if len(lat) else None,
-            "planner_latency_s": None,
-            "t_lt_s": float(clock.end(ticks.min())),
-            "t_in_map_last_s": float(clock.end(ticks[changed].max())) if changed.any() else None,
-            "voxels": int(len(keys)),
-            "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
-            "p_cells": int(len({(int(a), int(b)) for a, b in keys[changed, :2]})),
-            "centroid": [float(v) for v in centroid],
-            "extent_min": [float(v) for v in lo],
-            "extent_max": [float(v) for v in hi],
-        }
-        events.append(ev)
-        members[eid] = (rows[:, 1] * 512 + rows[:, 2]).astype(np.int64)
+        events.append(_event(eid, kind, rows, keys, changed, resolution, clock))
+        members[eid] = (rows[:, TR_BLOCK] * 512 + rows[:, TR_OFF]).astype(np.int64)
     return events, members
+
+
+def _event(eid: int, kind: int, rows: np.ndarray, keys: np.ndarray, changed: np.ndarray, resolution: float,
+           clock: TickClock) -> dict:  # fmt: skip
+    """One event's row (see the module's docstring for the times and latencies)."""
+    ticks, since = rows[:, TR_TICK], rows[:, TR_SINCE]
+    known = since >= 0
+    # per voxel: from the start of the first tick of its streak to the end of its crossing tick
+    voxel_lat = (ticks[known] - since[known] + 1) * clock.tick_s
+    cell_lat = np.zeros(0)
+    t_start = float(clock.start(since[known].min())) if known.any() else None
+    t_in_map = t_in_map_last = None
+    if changed.any():
+        # per changed cell: its first P change and the first streak start of the event's voxels in it
+        cols = ((keys[:, 0] + _BOFF) << 32) | (keys[:, 1] + _BOFF)
+        ch_cols = np.unique(cols[changed])
+        pos = np.minimum(np.searchsorted(ch_cols, cols), len(ch_cols) - 1)
+        in_ch = ch_cols[pos] == cols
+        big = np.iinfo(np.int64).max
+        first_change = np.full(len(ch_cols), big, dtype=np.int64)
+        np.minimum.at(first_change, pos[changed], ticks[changed])
+        first_seen = np.full(len(ch_cols), big, dtype=np.int64)
+        ok = in_ch & known
+        np.minimum.at(first_seen, pos[ok], since[ok])
+        seen = first_seen < big
+        cell_lat = (first_change[seen] - first_seen[seen] + 1) * clock.tick_s
+        t_in_map = float(clock.end(ticks[changed].min()))
+        t_in_map_last = float(clock.end(ticks[changed].max()))
+        if seen.any():
+            t_start = float(clock.start(first_seen[seen].min()))
+    lo = keys.min(axis=0) * resolution
+    hi = (keys.max(axis=0) + 1) * resolution
+    centroid = (keys.mean(axis=0) + 0.5) * resolution
+    return {
+        "id": eid,
+        "kind": KIND_NAME[kind],
+        "t_start_s": t_start,
+        "t_in_map_s": t_in_map,
+        "t_in_map_last_s": t_in_map_last,
+        "latency_s": t_in_map - t_start if t_start is not None and t_in_map is not None else None,
+        "cell_latency_min_s": float(cell_lat.min()) if len(cell_lat) else None,
+        "cell_latency_median_s": float(np.median(cell_lat)) if len(cell_lat) else None,
+        "cell_latency_max_s": float(cell_lat.max()) if len(cell_lat) else None,
+        "voxel_lt_latency_median_s": float(np.median(voxel_lat)) if len(voxel_lat) else None,
+        "planner_latency_s": None,
+        "t_lt_s": float(clock.end(ticks.min())),
+        "voxels": int(len(keys)),
+        "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
+        "p_cells": int(len({(int(a), int(b)) for a, b in keys[changed, :2]})),
+        "centroid": [float(v) for v in centroid],
+        "extent_min": [float(v) for v in lo],
+        "extent_max": [float(v) for v in hi],
+    }
 
 
 def event_history(

@@ -71,6 +71,7 @@ class ProjectionConfig:
     z_max: float = 1.5
     occupied_thresh: float = 0.65
     free_thresh: float = 0.196
+    footprint_radius: float = 0.2  # m: cells within this of the robot's path are free in P (0: off)
 
 
 @dataclass
@@ -106,6 +107,8 @@ class MapConfig:
         p = self.projection
         if p.z_max <= p.z_min:
             problems.append(f"map.projection.z_max ({p.z_max}) must exceed z_min ({p.z_min})")
+        if not (p.footprint_radius >= 0):
+            problems.append(f"map.projection.footprint_radius must be >= 0 (0: off), got {p.footprint_radius}")
         if not (0.0 <= p.free_thresh < p.occupied_thresh <= 1.0):
             problems.append("map.projection: 0 <= free_thresh < occupied_thresh <= 1 must hold")
         r = self.robot

@@ -3,8 +3,11 @@
 SPEC 2.2. ``LayeredMap.integrate`` fuses one sensor frame into O; ``LayeredMap.end_tick``
 applies the tick rules to every voxel some frame of the tick observed:
 
-- obstacle: O occupied (log-odds > 0) and S has no occupied voxel within ``static_margin``;
-- seen free: O free (log-odds < 0).
+- obstacle: O occupied (log-odds > 0), some frame of this tick hit the voxel, and S has no
+  occupied voxel within ``static_margin``;
+- seen free: O free (log-odds < 0);
+- held: O occupied but the voxel was only missed in this tick (an object just removed: O needs
+  several misses to turn free): ST and LT keep their values, so nothing rises from a stale O.
 
 ST rises by ``tick / st_rise_s`` for obstacles and falls by ``tick / st_fall_s`` for voxels seen
 free, clamped to [0, 1]; a voxel not observed as an obstacle for ``st_forget_s`` drops to 0.
@@ -17,6 +20,7 @@ from __future__ import annotations
 
 import threading
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit
@@ -46,7 +50,11 @@ from .raycast import (
     sparse_grown,
 )
 
-O_CHANNELS = {"logodds": (np.float32, 0.0), "stamp": (np.int32, 0)}
+O_CHANNELS = {
+    "logodds": (np.float32, 0.0),
+    "stamp": (np.int32, 0),  # id of the last frame that updated the voxel (0: never: unknown)
+    "hit": (np.uint8, 0),  # 1: some frame of the current tick hit the voxel (the tick rules clear it)
+}
 D_CHANNELS = {
     "st": (np.float32, 0.0),
     "lt": (np.float32, 0.0),
@@ -177,7 +185,53 @@ class StaticGrid:
 
 TR_APPEAR = 1  # transition kinds recorded by the tick kernel
 TR_DISAPPEAR = 2
+# the columns of a transition row (EventLog.tr)
+TR_KIND, TR_BLOCK, TR_OFF, TR_TICK, TR_SINCE = 0, 1, 2, 3, 4
+# the tick kernel's counters
+C_OBSTACLES, C_SEEN_FREE, C_LT_ENTERED, C_LT_LEFT, C_HELD = 0, 1, 2, 3, 4
 TICK_DONE = -1
+
+
+class TickSettings(NamedTuple):
+    """The tick kernel's scalars (a numba named tuple: one argument, fields by name)."""
+
+    rise: float  # ST step per tick of an obstacle: tick / st_rise_s
+    fall: float  # ST step per tick seen free: tick / st_fall_s
+    lt_fall: float  # LT step per tick seen free with ST == 0: tick / lt_fall_s
+    occ_thr: float  # LT crossing this is an event transition
+    k_lo: int  # the z band of P (transitions and history are recorded inside it)
+    k_hi: int
+    max_gap: int  # ticks of gap credit at most
+    static_margin: int  # voxels
+    near_i0: int  # cell (0, 0) of the static layer's dilated top grid
+    near_j0: int
+    tick_index: int
+    record_all: bool  # record every observed band voxel's values in the history this tick
+
+
+class DLayers(NamedTuple):
+    """The D grid (ST, LT and their clocks) as the tick kernel takes it."""
+
+    keys: np.ndarray
+    vals: np.ndarray
+    coords: np.ndarray
+    meta: np.ndarray
+    st: np.ndarray
+    lt: np.ndarray
+    last_obs: np.ndarray
+    last_seen: np.ndarray
+    obst_since: np.ndarray
+    free_since: np.ndarray
+
+
+class EventBuffers(NamedTuple):
+    """EventLog's arrays as the kernels take them."""
+
+    tr: np.ndarray
+    tr_meta: np.ndarray
+    hist_i: np.ndarray
+    hist_v: np.ndarray
+    hist_meta: np.ndarray
 
 
 @njit(cache=True, inline="always")
@@ -190,21 +244,31 @@ def _record_history(hist_i, hist_v, hist_meta, tick_index, vid, st_v, lt_v):
     hist_meta[0] = n + 1
 
 
+@njit(cache=True, inline="always")
+def _record_transition(ev, kind, db, doff, tick_index, since):
+    n = ev.tr_meta[0]
+    ev.tr[n, TR_KIND] = kind
+    ev.tr[n, TR_BLOCK] = db
+    ev.tr[n, TR_OFF] = doff
+    ev.tr[n, TR_TICK] = tick_index
+    ev.tr[n, TR_SINCE] = since
+    ev.tr_meta[0] = n + 1
+
+
 @njit(cache=True)
-def _tick_kernel(
-    tb_block, tb_off, n_tb, start,
-    o_coords, logodds,
-    d_keys, d_vals, d_coords, d_meta, st, lt, last_obs, last_seen, obst_since, free_since,
-    near, near_i0, near_j0, margin,
-    rise, fall, lt_fall, occ_thr, k_lo, k_hi, tick_index, max_gap, record_all,
-    tr, tr_meta, hist_i, hist_v, hist_meta, counters,
-):  # fmt: skip
-    """Tick rules for the voxels observed in this tick.
+def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, near, s, ev, counters):
+    """Tick rules for the voxels observed in this tick (``tb_block``/``tb_off``[start:n_tb]):
+    O's ``logodds`` and ``hit_mark`` (``o_coords`` its block coordinates), D's layers ``d``
+    (``DLayers``), the static layer's dilated top grid ``near``, the settings ``s``
+    (``TickSettings``), the event buffers ``ev`` (``EventBuffers``).
 
     Returns TICK_DONE, or the index to resume from when the D pool or an event buffer is full
-    (nothing of that item was changed). counters: [obstacles, seen free, LT entered, LT left].
+    (nothing of that item was changed). ``counters``: C_OBSTACLES, C_SEEN_FREE, C_LT_ENTERED,
+    C_LT_LEFT, C_HELD. A voxel O says occupied is an obstacle only when a frame of this tick hit
+    it (``hit_mark``, cleared here); observed only as a miss it is *held*: ST and LT keep their
+    values (an object just removed: O needs several misses to turn free).
     For voxels inside the z band [k_lo, k_hi] (what P shows), LT crossing ``occ_thr`` is recorded
-    in ``tr`` as (kind, D block, offset, tick, tick the streak began), and ST / LT values in the
+    in ``ev.tr`` as (kind, D block, offset, tick, tick the streak began), and ST / LT values in the
     history (every tick when ``record_all``, else at transitions).
 
     Rates are per tick of time, not per observation: a voxel observed again ``g`` ticks after
@@ -212,60 +276,71 @@ def _tick_kernel(
     ``min(g, max_gap)`` steps, so a layer's behaviour does not depend on the sensor rate. A first
     sighting counts one step, and a voxel seen free in between gets no credit for the gap."""
     NH, NW = near.shape
+    tick_index = s.tick_index
+    st, lt, last_seen = d.st, d.lt, d.last_seen
     for t in range(start, n_tb):
-        if tr_meta[0] >= tr.shape[0] or hist_meta[0] >= hist_i.shape[0]:
+        if ev.tr_meta[0] >= ev.tr.shape[0] or ev.hist_meta[0] >= ev.hist_i.shape[0]:
             return t
         b = tb_block[t]
         off = tb_off[t]
         lo = logodds[b, off]
+        hit = hit_mark[b, off] != 0
         if lo == 0.0:
+            hit_mark[b, off] = 0
             continue
         i = (np.int64(o_coords[b, 0]) << BLOCK_BITS) | ((off >> (2 * BLOCK_BITS)) & BLOCK_MASK)
         j = (np.int64(o_coords[b, 1]) << BLOCK_BITS) | ((off >> BLOCK_BITS) & BLOCK_MASK)
         k = (np.int64(o_coords[b, 2]) << BLOCK_BITS) | (off & BLOCK_MASK)
-        in_band = k_lo <= k <= k_hi
+        in_band = s.k_lo <= k <= s.k_hi
+        if lo > 0.0 and not hit:  # held: only missed while O still says occupied
+            hit_mark[b, off] = 0
+            counters[C_HELD] += 1
+            db = find_block(d.keys, d.vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if db >= 0:
+                doff = voxel_offset(i, j, k)
+                if last_seen[db, doff] >= 0:
+                    last_seen[db, doff] = tick_index  # observed: no gap credit for these ticks
+            continue
         if lo > 0.0:
-            r = j - near_j0
-            c = i - near_i0
-            if 0 <= r < NH and 0 <= c < NW and -margin <= k <= near[r, c]:
+            r = j - s.near_j0
+            c = i - s.near_i0
+            if 0 <= r < NH and 0 <= c < NW and -s.static_margin <= k <= near[r, c]:
+                hit_mark[b, off] = 0
                 continue  # S's own: a wall seen where the static map has it
-            db = get_or_add_block(d_keys, d_vals, d_coords, d_meta, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            db = get_or_add_block(d.keys, d.vals, d.coords, d.meta, i >> BLOCK_BITS, j >> BLOCK_BITS,
+                                  k >> BLOCK_BITS)  # fmt: skip
             if db < 0:
                 return t
+            hit_mark[b, off] = 0
             doff = voxel_offset(i, j, k)
-            counters[0] += 1
+            counters[C_OBSTACLES] += 1
             old = st[db, doff]
             steps = 1
             if old == 0.0:
-                obst_since[db, doff] = tick_index
+                d.obst_since[db, doff] = tick_index
             elif last_seen[db, doff] >= 0:  # unobserved since then: credit the gap
-                steps = min(max(tick_index - last_seen[db, doff], 1), max_gap)
-            free_since[db, doff] = -1
-            v = old + rise * steps
-            last_obs[db, doff] = tick_index
+                steps = min(max(tick_index - last_seen[db, doff], 1), s.max_gap)
+            d.free_since[db, doff] = -1
+            v = old + s.rise * steps
+            d.last_obs[db, doff] = tick_index
             last_seen[db, doff] = tick_index
             entered = False
             if v >= 1.0 - 1e-4:
                 v = 1.0
                 if lt[db, doff] < 1.0:
-                    if lt[db, doff] < occ_thr:
-                        counters[2] += 1
+                    if lt[db, doff] < s.occ_thr:
+                        counters[C_LT_ENTERED] += 1
                         entered = in_band
                     lt[db, doff] = 1.0
             st[db, doff] = v
             if entered:
-                n = tr_meta[0]
-                tr[n, 0] = TR_APPEAR
-                tr[n, 1] = db
-                tr[n, 2] = doff
-                tr[n, 3] = tick_index
-                tr[n, 4] = obst_since[db, doff]
-                tr_meta[0] = n + 1
-            if in_band and (record_all or entered):
-                _record_history(hist_i, hist_v, hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
+                _record_transition(ev, TR_APPEAR, db, doff, tick_index, d.obst_since[db, doff])
+            if in_band and (s.record_all or entered):
+                _record_history(ev.hist_i, ev.hist_v, ev.hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
         else:
-            counters[1] += 1
-            db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            hit_mark[b, off] = 0
+            counters[C_SEEN_FREE] += 1
+            db = find_block(d.keys, d.vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
             if db < 0:
                 continue
             doff = voxel_offset(i, j, k)
@@ -274,35 +349,29 @@ def _tick_kernel(
             if old_st == 0.0 and w == 0.0:
                 continue  # nothing to fall
             steps = 1
-            if free_since[db, doff] >= 0 and last_seen[db, doff] >= 0:
-                steps = min(max(tick_index - last_seen[db, doff], 1), max_gap)
-            if free_since[db, doff] < 0:
-                free_since[db, doff] = tick_index
+            if d.free_since[db, doff] >= 0 and last_seen[db, doff] >= 0:
+                steps = min(max(tick_index - last_seen[db, doff], 1), s.max_gap)
+            if d.free_since[db, doff] < 0:
+                d.free_since[db, doff] = tick_index
             last_seen[db, doff] = tick_index
-            v = old_st - fall * steps
+            v = old_st - s.fall * steps
             if v <= 1e-4:
                 v = 0.0
-                obst_since[db, doff] = -1
+                d.obst_since[db, doff] = -1
             st[db, doff] = v
             left = False
             if w > 0.0 and v == 0.0:
-                w2 = w - lt_fall * steps
+                w2 = w - s.lt_fall * steps
                 if w2 <= 1e-4:
                     w2 = 0.0
-                if w >= occ_thr > w2:
-                    counters[3] += 1
+                if w >= s.occ_thr > w2:
+                    counters[C_LT_LEFT] += 1
                     left = in_band
                 lt[db, doff] = w2
             if left:
-                n = tr_meta[0]
-                tr[n, 0] = TR_DISAPPEAR
-                tr[n, 1] = db
-                tr[n, 2] = doff
-                tr[n, 3] = tick_index
-                tr[n, 4] = free_since[db, doff]
-                tr_meta[0] = n + 1
-            if in_band and (record_all or left):
-                _record_history(hist_i, hist_v, hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
+                _record_transition(ev, TR_DISAPPEAR, db, doff, tick_index, d.free_since[db, doff])
+            if in_band and (s.record_all or left):
+                _record_history(ev.hist_i, ev.hist_v, ev.hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
     return TICK_DONE
 
 
@@ -373,8 +442,8 @@ def _forget_due(fq_vid, fq_due, fq_meta, d_coords, st, lt, last_obs, obst_since,
 class EventLog:
     """What the tick kernel records for the measurements of SPEC 6 (plain growable arrays).
 
-    ``transitions`` rows: (kind TR_APPEAR / TR_DISAPPEAR, D block, offset, tick, tick the
-    obstacle / seen-free streak began); ``history_i`` rows (tick, D voxel id = block * 512 +
+    ``transitions`` rows (columns TR_KIND, TR_BLOCK, TR_OFF, TR_TICK, TR_SINCE): (kind TR_APPEAR /
+    TR_DISAPPEAR, D block, offset, tick, tick the obstacle / seen-free streak began); ``history_i`` rows (tick, D voxel id = block * 512 +
     offset) with ``history_v`` (ST, LT) after that tick."""
 
     def __init__(self):
@@ -417,6 +486,7 @@ class TickResult:
     lt_entered: int  # voxels whose LT crossed the occupied threshold upwards
     lt_left: int  # voxels whose LT fell below the occupied threshold
     st_forgotten: int
+    held: int = 0  # voxels O says occupied that the tick observed only as misses (ST, LT kept)
 
 
 KEY_LIMIT = (1 << 20) - 2  # voxel keys within +-KEY_LIMIT: the packed keys of the end-point dedupe
@@ -665,7 +735,7 @@ class LayeredMap:
             o = self.O
             status, phase, start = apply_voxels_kernel(
                 hits, misses,
-                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
+                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
                 phase, start, counters,
@@ -698,19 +768,22 @@ class LayeredMap:
         record_all = self.history_every > 0 and self.tick_index % self.history_every == 0
         ev = self.events
         n_tb = int(self._tb_meta[0])
-        counters = np.zeros(4, dtype=np.int64)
+        counters = np.zeros(5, dtype=np.int64)
+        settings = TickSettings(
+            rise=float(rise), fall=float(fall), lt_fall=float(lt_fall), occ_thr=float(pc.occupied_thresh),
+            k_lo=int(k_lo), k_hi=int(k_hi), max_gap=int(max_gap), static_margin=int(lay.static_margin_cells),
+            near_i0=int(self._near_i0), near_j0=int(self._near_j0), tick_index=int(self.tick_index),
+            record_all=bool(record_all),
+        )  # fmt: skip
         start = 0
-        while True:
+        while True:  # the arrays are taken anew after a growth
             d = self.D
-            start = _tick_kernel(
-                self._tb_block, self._tb_off, n_tb, start,
-                self.O.block_coords, self.O.data["logodds"],
-                d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"], d.data["last_obs"],
-                d.data["last_seen"], d.data["obst_since"], d.data["free_since"],
-                self._near, self._near_i0, self._near_j0, lay.static_margin_cells,
-                rise, fall, lt_fall, pc.occupied_thresh, k_lo, k_hi, self.tick_index, max_gap, record_all,
-                ev.tr, ev.tr_meta, ev.hist_i, ev.hist_v, ev.hist_meta, counters,
-            )  # fmt: skip
+            dl = DLayers(d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"],
+                         d.data["last_obs"], d.data["last_seen"], d.data["obst_since"], d.data["free_since"])  # fmt: skip
+            bufs = EventBuffers(ev.tr, ev.tr_meta, ev.hist_i, ev.hist_v, ev.hist_meta)
+            start = _tick_kernel(self._tb_block, self._tb_off, n_tb, start, self.O.block_coords,
+                                 self.O.data["logodds"], self.O.data["hit"], dl, self._near, settings, bufs,
+                                 counters)  # fmt: skip
             if start == TICK_DONE:
                 break
             if self.D.n_blocks >= self.D.max_blocks:
@@ -735,11 +808,12 @@ class LayeredMap:
         result = TickResult(
             tick_index=self.tick_index,
             observed=n_tb,
-            obstacles=int(counters[0]),
-            seen_free=int(counters[1]),
-            lt_entered=int(counters[2]),
-            lt_left=int(counters[3]),
+            obstacles=int(counters[C_OBSTACLES]),
+            seen_free=int(counters[C_SEEN_FREE]),
+            lt_entered=int(counters[C_LT_ENTERED]),
+            lt_left=int(counters[C_LT_LEFT]),
             st_forgotten=int(forgotten),
+            held=int(counters[C_HELD]),
         )
         self.tick_index += 1
         self._tb_meta[0] = 0
@@ -861,7 +935,10 @@ class LayeredMap:
             self.seed_long_term(keys, D.get("lt", keys))
             return
         self.D = D
-        self.O = VoxelGrid.from_arrays(res, O_CHANNELS, arrays, "O_")
+        # the hit marks belong to a tick in progress, which a loaded state does not resume (states
+        # written before the channel existed have none)
+        o_arrays = {**arrays, "O_hit": np.zeros(np.shape(arrays["O_logodds"]), dtype=np.uint8)}
+        self.O = VoxelGrid.from_arrays(res, O_CHANNELS, o_arrays, "O_")
         self.frame_id = int(arrays["frame_id"])
         self.tick_index = int(arrays["tick_index"])
         self._tick_first = self.frame_id + 1

@@ -3,7 +3,9 @@
 P takes the maximum of F = max(S, LT) over the voxels of each column whose z-interval meets
 [z_min, z_max] with positive length. A cell is occupied when that maximum reaches the occupied
 threshold, free when some voxel of its band was seen free in O (or S says free) and none is
-occupied, unknown otherwise.
+occupied, unknown otherwise. The cells the robot's footprint covered along its path (a disc of
+``footprint_radius`` around each pose) are free unless occupied: the robot stood there (nav2's
+costmaps clear the footprint likewise), so a path can be planned from where it is.
 
 The virtual scan is a LaserScan whose range per beam is the distance to the nearest cell that is
 occupied in max(P, current obstacles in O): it shows the local planner what the 2D laser misses.
@@ -21,6 +23,74 @@ from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, band_k_range, find_block, voxel
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
 
 
+def footprint_cells(path_xy, radius: float, resolution: float) -> np.ndarray:
+    """The (i, j) lattice cells (M, 2), unique, whose centre lies within ``radius`` of a pose of
+    ``path_xy`` (N, 2 metres; poses farther apart than half a cell are joined by points on the
+    segment between them, so a fast robot sweeps a band, not beads). Poses are snapped to the
+    centres of a grid of quarter cells (within 0.9 cm at 0.05 m), so thousands of frames of a
+    standing robot cost a few points. Empty for radius <= 0."""
+    pts = np.asarray(path_xy, dtype=np.float64).reshape(-1, 2)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    if radius <= 0 or not len(pts):
+        return np.zeros((0, 2), dtype=np.int64)
+    step = 0.5 * resolution
+    if len(pts) > 1:
+        seg = np.diff(pts, axis=0)
+        n = np.maximum(np.ceil(np.hypot(seg[:, 0], seg[:, 1]) / step).astype(np.int64), 1)
+        if n.max() > 1:  # fill the gaps
+            idx = np.repeat(np.arange(len(seg)), n)
+            frac = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
+            pts = np.concatenate([pts[idx] + seg[idx] * frac[:, None], pts[-1:]])
+    q = np.unique(np.floor(pts / (0.25 * resolution)).astype(np.int64), axis=0)
+    centres = (q + 0.5) * (0.25 * resolution)
+    reach = int(np.ceil(radius / resolution)) + 1
+    di, dj = np.mgrid[-reach : reach + 1, -reach : reach + 1]
+    di, dj = di.ravel(), dj.ravel()
+    base = np.floor(centres / resolution).astype(np.int64)
+    ci = base[:, 0:1] + di[None, :]
+    cj = base[:, 1:2] + dj[None, :]
+    dx = (ci + 0.5) * resolution - centres[:, 0:1]
+    dy = (cj + 0.5) * resolution - centres[:, 1:2]
+    inside = dx * dx + dy * dy <= radius * radius + 1e-12
+    cells = np.stack([ci[inside], cj[inside]], axis=1)
+    return np.unique(cells, axis=0) if len(cells) else np.zeros((0, 2), dtype=np.int64)
+
+
+class FootprintTrace:
+    """The footprint cells of a path that grows (a replay's trajectory), taken in incrementally:
+    each ``update`` looks only at the poses added since the last one."""
+
+    def __init__(self, radius: float, resolution: float):
+        self.radius = float(radius)
+        self.resolution = float(resolution)
+        self.cells = np.zeros((0, 2), dtype=np.int64)
+        self._keys = np.zeros(0, dtype=np.int64)  # the cells packed, sorted
+        self._n = 0
+        self._last: np.ndarray | None = None
+
+    def update(self, path) -> np.ndarray:
+        """The cells (M, 2) of ``path``: a sequence of rows whose last two values are x, y in
+        metres (e.g. (t, x, y)), the same sequence as before with rows appended. Cost: the new
+        poses and a merge into the sorted cells (a long drive has 10^5 cells: no sort of them)."""
+        if len(path) > self._n:
+            new = np.asarray(path[self._n :], dtype=np.float64).reshape(len(path) - self._n, -1)[:, -2:]
+            pts = new if self._last is None else np.concatenate([self._last, new])
+            cells = footprint_cells(pts, self.radius, self.resolution)
+            if len(cells):
+                keys = np.unique(((cells[:, 0] + _FP_OFF) << 32) | (cells[:, 1] + _FP_OFF))
+                pos = np.searchsorted(self._keys, keys)
+                known = np.zeros(len(keys), dtype=bool)
+                if len(self._keys):
+                    known = (pos < len(self._keys)) & (self._keys[np.minimum(pos, len(self._keys) - 1)] == keys)
+                if not known.all():
+                    self._keys = np.insert(self._keys, pos[~known], keys[~known])
+                    self.cells = np.stack([(self._keys >> 32) - _FP_OFF, (self._keys & 0xFFFFFFFF) - _FP_OFF], axis=1)
+            self._last = new[-1:]
+            self._n = len(path)
+        return self.cells
+
+
+_FP_OFF = np.int64(1 << 30)  # packed footprint cells: (i + off) << 32 | (j + off)
 
 
 @dataclass
@@ -103,12 +173,22 @@ def project(
     use_static: bool = True,
     use_lt: bool = True,
     use_o_free: bool = True,
+    footprint=None,
 ) -> Projection:
     """P of a ``LayeredMap`` over the band [z_min, z_max] (defaults from its config).
 
     The flags leave layers out: ``use_static=False`` projects LT alone (``long_term.pgm``);
-    ``use_lt=False, use_o_free=False`` projects S alone (``static.pgm``)."""
+    ``use_lt=False, use_o_free=False`` projects S alone (``static.pgm``). ``footprint``: the
+    robot's path, float (N, 2) x, y in metres (its cells: ``footprint_cells`` with the config's
+    ``footprint_radius``), or the cells themselves, integer (M, 2) i, j; those cells are free
+    unless occupied (None: no footprint)."""
     pc = lmap.cfg.projection
+    fp = None
+    if footprint is not None:
+        fp = np.asarray(footprint)
+        if fp.dtype.kind == "f":
+            fp = footprint_cells(fp, pc.footprint_radius, lmap.resolution)
+        fp = fp.astype(np.int64).reshape(-1, 2)
     z_min = pc.z_min if z_min is None else z_min
     z_max = pc.z_max if z_max is None else z_max
     r = lmap.resolution
@@ -126,6 +206,8 @@ def project(
     s = lmap.static if use_static else None
     if s is not None:
         boxes.append((s.i0, s.j0, s.i0 + s.occ.shape[1], s.j0 + s.occ.shape[0]))
+    if fp is not None and len(fp):
+        boxes.append((fp[:, 0].min(), fp[:, 1].min(), fp[:, 0].max() + 1, fp[:, 1].max() + 1))
     if not boxes:
         return Projection(np.full((1, 1), UNKNOWN, np.int8), np.zeros((1, 1), np.float32),
                            np.zeros((1, 1), bool), 0, 0, r)  # fmt: skip
@@ -149,6 +231,8 @@ def project(
         sub_v[s_occ] = 1.0
         sub_f |= s.occ == FREE
     occ = value >= pc.occupied_thresh
+    if fp is not None and len(fp):
+        seen_free[fp[:, 1] - j0, fp[:, 0] - i0] = True  # the robot stood there
     data = np.where(occ, OCCUPIED, np.where(seen_free, FREE, UNKNOWN)).astype(np.int8)
     return Projection(data, value, seen_free, i0, j0, r)
 

@@ -18,7 +18,8 @@ bitmap over the frame's box drops the repeats (a dense depth frame steps through
 per-voxel ``stamp`` channel holds the id of the last frame that updated the voxel: a voxel is
 updated at most once per frame and a hit wins over a miss (hits go first), which is OctoMap's
 rule without its hash sets. ``stamp == 0`` means never updated (unknown). Every voxel updated
-for the first time in the current tick is appended to the tick buffer for the tick rules.
+for the first time in the current tick is appended to the tick buffer for the tick rules, and a
+hit sets the voxel's ``hit`` mark (the tick rules need to know whether a frame of the tick hit it).
 """
 
 from __future__ import annotations
@@ -370,7 +371,7 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
 @njit(cache=True, nogil=True)
 def apply_voxels_kernel(
     hits, misses,
-    table_keys, table_vals, block_coords, meta, logodds, stamp,
+    table_keys, table_vals, block_coords, meta, logodds, stamp, hit_mark,
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
     phase, start, counters,
@@ -379,8 +380,9 @@ def apply_voxels_kernel(
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
     grows storage and calls again from there. A voxel whose stamp is this frame's was updated
     already: it is left alone (``frame_voxels`` lists each voxel once, so this is a guard), so
-    each voxel is updated once per frame and a hit wins over a miss. ``counters`` accumulates
-    [hits applied, misses applied]."""
+    each voxel is updated once per frame and a hit wins over a miss. A hit also sets
+    ``hit_mark`` (O's ``hit`` channel: hit in this tick; the tick rules read and clear it).
+    ``counters`` accumulates [hits applied, misses applied]."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
@@ -423,6 +425,7 @@ def apply_voxels_kernel(
             v = logodds[last_b, off] + lo
             if phase == 0:
                 logodds[last_b, off] = lo_max32 if v > lo_max32 else v
+                hit_mark[last_b, off] = 1
             else:
                 logodds[last_b, off] = lo_min32 if v < lo_min32 else v
             stamp[last_b, off] = frame_id

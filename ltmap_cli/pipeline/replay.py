@@ -366,6 +366,10 @@ class Replay:
         write_text_atomic(out / "report.json", json.dumps(data, indent=2, default=_json_default) + "\n")
         return data
 
+    def clock(self):
+        """Tick index -> seconds since the log's start, for this run (events, plots, tests)."""
+        return self.ticker.analysis_clock(self.state.log_start_ns)
+
     # ------------------------------------------------------------------------------------
     def _feed_localization(self, log_ns: int | None) -> None:
         """The pre-pass's map -> odom estimates enter tf as if recorded: each when the log reaches

@@ -21,7 +21,7 @@ from ..analysis.events import event_history, events_csv, find_events, percentile
 from ..analysis.plan_tracker import PlanTracker
 from ..core.grid import band_k_range, coord_to_pos
 from ..core.layers import LayeredMap
-from ..core.projection import Projection, project, static_fills, virtual_scan
+from ..core.projection import FootprintTrace, Projection, project, static_fills, virtual_scan
 from ..io.atomic import write_text_atomic
 from ..io.frames import OdometrySample, ScanFrame, TfSample
 from ..io.mapfile import GridMap, write_map
@@ -67,11 +67,15 @@ class RunState:
         self.trajectory: list[tuple[float, float, float]] = []  # (t_s, x, y) of the robot per frame
         self._p_key: tuple | None = None
         self._p: Projection | None = None
+        self._footprint = FootprintTrace(cfg.map.projection.footprint_radius, lmap.resolution)
 
     def p_now(self) -> Projection:
+        """P as it is now; the cells the robot's footprint covered along its path are free unless
+        occupied (SPEC 2.3: the robot stood there, as nav2's costmaps clear the footprint)."""
         key = (self.lmap.frame_id, self.lmap.tick_index)
         if self._p_key != key:
-            self._p_key, self._p = key, project(self.lmap)
+            cells = self._footprint.update(self.trajectory)
+            self._p_key, self._p = key, project(self.lmap, footprint=cells)
         return self._p
 
     def grid_now(self) -> GridMap:
@@ -370,9 +374,12 @@ class EventsSink(Sink):
         k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, lmap.resolution)
         lt_keys = lmap.occupied_keys("LT")
         final_cols = lt_keys[(lt_keys[:, 2] >= k_lo) & (lt_keys[:, 2] <= k_hi), :2]
+        rc = cfg.replay
+        filtered: dict = {}
         events, members = find_events(
             lmap.events.transitions, lmap.D.block_coords[: lmap.D.n_blocks], lmap.resolution, clock,
-            window_s=cfg.replay.event_window_s, link_m=cfg.replay.event_link_m,
+            window_s=rc.event_window_s, link_m=rc.event_link_m, min_voxels=rc.event_min_voxels,
+            min_p_cells=rc.event_min_p_cells, filtered=filtered, drop_surface=rc.event_drop_surface,
             final_cols=final_cols, static_cols=lambda cols: static_fills(lmap, cols),
         )  # fmt: skip
         extra = {}
@@ -395,6 +402,10 @@ class EventsSink(Sink):
             "count": len(events),
             "appear": sum(e["kind"] == "appear" for e in events),
             "disappear": sum(e["kind"] == "disappear" for e in events),
+            # groups left out: below event_min_voxels and changing fewer than event_min_p_cells cells
+            # of P, or (drop_surface) only shifting the edge of something that stays
+            "filtered": {**filtered, "min_voxels": rc.event_min_voxels, "min_p_cells": rc.event_min_p_cells,
+                         "drop_surface": rc.event_drop_surface},
             "add_latency_s": percentiles(lat["add"]),
             "remove_latency_s": percentiles(lat["remove"]),
             "planner_latency_s": percentiles(lat["planner"]) if "planner" in lat else None,
@@ -452,7 +463,7 @@ class PlotsSink(Sink):
             map3d={"centers": coord_to_pos(keys, lmap.resolution), "values": lmap.values("LT", keys),
                    "resolution": lmap.resolution,
                    "static_centers": coord_to_pos(static_keys, lmap.resolution) if static_keys is not None else None,
-                   "title": "final map: long-term voxels by height, static in grey"},
+                   "title": None},  # the renderer says what it shows (and whether there is a static layer)
         )  # fmt: skip
         return {"outputs": {"plots": {k: str(run.final / self.FOLDER / Path(v).name) for k, v in files.items()}}}
 

@@ -470,7 +470,11 @@ def plot_processing_hist(
     """Histogram of the wall-clock processing time of each frame, per source (sensor topic, or
     ``tick``), on shared bins; log-scaled x when the values span more than ~30x. A dashed line
     per source at its frame period (``periods_ms``): mass right of it is a frame that took longer
-    than the sensor's period. p50/p95/p99 and the share over the period are in the legend."""
+    than the sensor's period. p50/p95/p99 and the share over the period are in the legend.
+
+    The x axis ends at the largest p99 of the sources (or the largest period, if larger): a few
+    slow first frames (caches filling) would otherwise stretch it; frames beyond are counted in
+    the last bin and the x label says how many and up to what time."""
     periods = {
         k: float(v) for k, v in (periods_ms or {}).items() if v is not None and math.isfinite(v) and v > 0
     }
@@ -478,6 +482,13 @@ def plot_processing_hist(
     values = np.concatenate([v for v in data.values()] + [np.zeros(0)])
     if len(values) == 0:
         _no_data(ax, "no frames")
+    clip = max((float(np.percentile(v, 99)) for v in data.values() if len(v)), default=None)
+    beyond = 0
+    if clip is not None and len(values):
+        clip = max([clip] + list(periods.values()))
+        beyond = int((values > clip).sum())
+        top = float(values.max())
+        values = np.minimum(values, clip)
     pos = values[values > 0]
     log = len(pos) > 0 and pos.max() / pos.min() > 30.0
     pers = [periods[k] for k in data if k in periods]
@@ -500,7 +511,7 @@ def plot_processing_hist(
             label = f"{name} (n = {len(v)}): p50 {_fmt(p50)}, p95 {_fmt(p95)}, p99 {_fmt(p99)} ms"
             if name in periods:
                 label += f"; {100.0 * np.mean(v > periods[name]):.1f}% over period"
-            vv = np.clip(v, edges[0], edges[-1]) if log else v
+            vv = np.clip(v, edges[0], edges[-1])  # frames beyond the clip in the last bin
             ax.hist(vv, bins=edges, histtype="step", lw=2, color=colour, label=label)
             ax.hist(vv, bins=edges, histtype="stepfilled", color=colour, alpha=0.12)
         if name in periods:
@@ -512,13 +523,18 @@ def plot_processing_hist(
                 label=f"{name} frame period {_fmt(periods[name])} ms",
             )
     ax.set_xlim(edges[0], edges[-1])
-    ax.set_xlabel("processing time per frame [ms]" + (" (log scale)" if log else ""))
+    xlabel = "processing time per frame [ms]" + (" (log scale)" if log else "")
+    if beyond:
+        xlabel += (f"\naxis clipped at the largest p99 or period ({_fmt(clip)} ms): {beyond} frame"
+                   f"{'s' if beyond > 1 else ''} up to {_fmt(top)} ms counted in the last bin")  # fmt: skip
+    ax.set_xlabel(xlabel)
     ax.set_ylabel("frames")
     ax.set_title(title)
     ax.grid(True, color="0.9", lw=0.8)
     ax.set_axisbelow(True)
     if ax.get_legend_handles_labels()[0]:
-        ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.14), fontsize="small", frameon=False, ncol=1)
+        ax.legend(loc="upper left", bbox_to_anchor=(0.0, -0.2 if beyond else -0.14), fontsize="small",
+                  frameon=False, ncol=1)  # fmt: skip
 
 
 def event_rectangle(event: dict, min_size: float = 0.0):
@@ -557,6 +573,80 @@ def _paint_event_cells(ax, grid, events: list[dict], event_cells: dict) -> None:
               zorder=3)  # fmt: skip
 
 
+def map_view(grid, events: list[dict] = (), robot_xy=None, path_xy=None, margin: float = 1.0):
+    """(x0, x1, y0, y1): the part of ``grid`` worth showing with events, in metres: its occupied
+    cells, the events, the robot's trajectory and the path, with ``margin`` around, within the
+    grid (a laser's no-return beams can clear free space far beyond the rooms). The whole grid
+    when there is nothing of these."""
+    from ..analysis import cell_to_world, occupied_mask
+
+    ox, oy = float(grid.origin[0]), float(grid.origin[1])
+    res = float(grid.resolution)
+    full = (ox, ox + grid.width * res, oy, oy + grid.height * res)
+    pts = []
+    rows, cols = np.nonzero(occupied_mask(grid))
+    if len(rows):
+        x, y = cell_to_world(grid, rows, cols)
+        pts.append(np.stack([np.atleast_1d(x), np.atleast_1d(y)], axis=1))
+    for e in events:
+        pts.append(np.array([e["extent_min"][:2], e["extent_max"][:2]], dtype=float))
+    for xy in (robot_xy, path_xy):
+        if xy is not None and len(xy):
+            pts.append(np.asarray(xy, dtype=float).reshape(-1, 2))
+    if not pts:
+        return full
+    p = np.concatenate(pts)
+    p = p[np.isfinite(p).all(axis=1)]
+    if not len(p):
+        return full
+    x0, y0 = p.min(axis=0) - margin
+    x1, y1 = p.max(axis=0) + margin
+    x0, x1 = max(x0, full[0]), min(x1, full[1])
+    y0, y1 = max(y0, full[2]), min(y1, full[3])
+    if x1 <= x0 or y1 <= y0:
+        return full
+    return (float(x0), float(x1), float(y0), float(y1))
+
+
+def _label_size_px(ax, text: str) -> tuple[float, float]:
+    """Width and height in pixels of an event label (small bold text in a padded box)."""
+    from matplotlib.font_manager import FontProperties
+
+    fs = FontProperties(size="small").get_size_in_points()
+    dpi = ax.figure.dpi
+    return ((0.72 * fs * len(text) + 0.9 * fs) * dpi / 72.0, (1.3 * fs + 0.7 * fs) * dpi / 72.0)
+
+
+def _place_labels(ax, boxes: list[tuple[str, tuple[float, float, float, float]]]) -> list:
+    """Positions for labels next to their boxes (x0, y0, w, h in data units) that overlap no
+    label placed before them and stay inside the axes: [(text, (x, y) display anchor of the label's
+    lower-left corner) or None when no place is free], in the order given (place the important
+    ones first)."""
+    ax.apply_aspect()  # the axes box as it will be drawn (equal aspect shrinks it)
+    to_px = ax.transData.transform
+    bb = ax.get_window_extent()
+    placed: list[tuple[float, float, float, float]] = []
+    out = []
+    gap = 2.0
+    for text, (x0, y0, w, h) in boxes:
+        lw, lh = _label_size_px(ax, text)
+        (px0, py0), (px1, py1) = to_px((x0, y0)), to_px((x0 + w, y0 + h))
+        cands = [(px0, py1 + gap), (px1 - lw, py1 + gap), (px0, py0 - gap - lh), (px1 - lw, py0 - gap - lh),
+                 (px1 + gap, (py0 + py1 - lh) / 2), (px0 - gap - lw, (py0 + py1 - lh) / 2)]  # fmt: skip
+        where = None
+        for cx, cy in cands:
+            r = (cx, cy, cx + lw, cy + lh)
+            if r[0] < bb.x0 or r[1] < bb.y0 or r[2] > bb.x1 or r[3] > bb.y1:
+                continue
+            if any(r[0] < q[2] and q[0] < r[2] and r[1] < q[3] and q[1] < r[3] for q in placed):
+                continue
+            where = (cx, cy)
+            placed.append(r)
+            break
+        out.append((text, where))
+    return out
+
+
 def plot_map_events(
     ax,
     grid,
@@ -567,13 +657,19 @@ def plot_map_events(
     title: str | None = None,
     labels: bool = True,
     event_cells: dict | None = None,
+    view: tuple[float, float, float, float] | None = None,
 ) -> None:
     """The final 2D map (``plot_map``) with each event's xy extent as a box (vermillion: appeared,
-    blue: disappeared) labelled with its id, and optionally the planned path (green) and the
-    robot's trajectory (purple). A box narrower than a cell is drawn one cell wide. Each box is a
-    ``Rectangle`` whose gid is ``"event <id>"``. With ``event_cells`` ({id: (N, 2) lower-left
-    corners of its cells, in metres}) the event's own cells are filled instead of its whole box
-    (an L-shaped wall is an L, not a rectangle), and the box is a thin outline."""
+    blue: disappeared), and optionally the planned path (green) and the robot's trajectory
+    (purple). A box narrower than a cell is drawn one cell wide. Each box is a ``Rectangle``
+    whose gid is ``"event <id>"``. With ``event_cells`` ({id: (N, 2) lower-left corners of its
+    cells, in metres}) the event's own cells are filled instead of its whole box (an L-shaped
+    wall is an L, not a rectangle), and the box is a thin outline.
+
+    Readable with hundreds of events: only events that changed P (``p_cells`` > 0, or no
+    ``p_cells`` given) get a label with their id, the ones that changed most cells first, each
+    next to its box where it overlaps no other label (else none); the legend says how many are
+    labelled. ``view`` (x0, x1, y0, y1) limits the axes (``map_view``: the occupied part)."""
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch, Rectangle
 
@@ -583,25 +679,40 @@ def plot_map_events(
     if title is None:
         title = f"Final map: {counts['appear']} appeared, {counts['disappear']} disappeared"
     plot_map(ax, grid, title=title, scale_bar=False)
+    if view is not None:
+        ax.set_xlim(view[0], view[1])
+        ax.set_ylim(view[2], view[3])
     if event_cells:
         _paint_event_cells(ax, grid, events, event_cells)
+    rects = {}
     for e in events:
         kind = e.get("kind", "appear")
         colour = EVENT_COLORS.get(kind, OI_PURPLE)
         x0, y0, w, h = event_rectangle(e, min_size=float(grid.resolution))
+        rects[id(e)] = (x0, y0, w, h)
         cells = event_cells is not None and e.get("id") in event_cells
-        if not cells:
+        quiet = e.get("p_cells") == 0  # LT changed, P did not: a thin outline
+        if not cells and not quiet:
             ax.add_patch(Rectangle((x0, y0), w, h, facecolor=colour, alpha=0.25, edgecolor="none", zorder=3))
         box = Rectangle(
-            (x0, y0), w, h, fill=False, edgecolor=colour, lw=0.8 if cells else 2, ls="--" if cells else "-",
-            zorder=4, gid=f"event {e.get('id')}",
+            (x0, y0), w, h, fill=False, edgecolor=colour, lw=0.8 if cells or quiet else 2,
+            ls="--" if cells or quiet else "-", alpha=0.6 if quiet else 1.0, zorder=4, gid=f"event {e.get('id')}",
         )
         ax.add_patch(box)
-        if labels:
+    changed = [e for e in events if e.get("p_cells") is None or e.get("p_cells") > 0]
+    n_labelled = 0
+    if labels and changed:
+        order = sorted(changed, key=lambda e: (-(e.get("p_cells") or 0), str(e.get("id"))))
+        places = _place_labels(ax, [(str(e.get("id")), rects[id(e)]) for e in order])
+        to_data = ax.transData.inverted().transform
+        for e, (text, where) in zip(order, places):
+            if where is None:
+                continue
+            colour = EVENT_COLORS.get(e.get("kind", "appear"), OI_PURPLE)
             ax.annotate(
-                str(e.get("id")),
-                (x0, y0 + h),
-                xytext=(2, 2),
+                text,
+                tuple(to_data(where)),
+                xytext=(1.5, 1.5),  # inside the box estimated by _label_size_px (its padding)
                 textcoords="offset points",
                 ha="left",
                 va="bottom",
@@ -611,6 +722,7 @@ def plot_map_events(
                 zorder=5,
                 bbox=dict(boxstyle="round,pad=0.15", fc="white", ec=colour, lw=0.8, alpha=0.85),
             )
+            n_labelled += 1
     handles = []
     if robot_xy is not None and len(robot_xy):
         r = np.asarray(robot_xy, dtype=float)
@@ -651,6 +763,11 @@ def plot_map_events(
         Patch(facecolor=np.array(FREE_RGB) / 255, edgecolor="0.5", label="free"),
         Patch(facecolor=np.array(UNKNOWN_RGB) / 255, edgecolor="0.5", label="unknown"),
     ]
+    if events and labels:
+        note = f"ids: {n_labelled} of the {len(changed)} events that changed P"
+        if len(changed) < len(events):
+            note += f"\n({len(events) - len(changed)} that left P as it was: thin dashed boxes)"
+        handles.append(Patch(facecolor="none", edgecolor="none", label=note))
     ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize="small", frameon=False)
     add_scale_bar(ax)
 
@@ -790,8 +907,10 @@ def write_summary_plots(
     written["processing_latency"] = str(p)
 
     if grid is not None:
-        fig, ax = new_figure(grid.width, grid.height, legend=True)
-        plot_map_events(ax, grid, events, path_xy=path_xy, robot_xy=robot_xy, event_cells=event_cells)
+        view = map_view(grid, events, robot_xy=robot_xy, path_xy=path_xy)
+        res = float(grid.resolution)
+        fig, ax = new_figure(int((view[1] - view[0]) / res), int((view[3] - view[2]) / res), legend=True)
+        plot_map_events(ax, grid, events, path_xy=path_xy, robot_xy=robot_xy, event_cells=event_cells, view=view)
         p = out / PLOT_FILES["map_events"]
         save_png(fig, p)
         written["map_events"] = str(p)

@@ -11,6 +11,12 @@ its surface, not its volume). Above ``max_faces`` faces the matplotlib view draw
 instead of cubes, and above ``max_points`` voxels the map is first merged onto a coarser grid
 (a multiple of the resolution) so that the picture keeps the map's shape.
 
+So that the walls do not hide the objects, the static layer (the building's walls) is drawn only
+up to ``wall_cut_z`` (0.3 m: the rooms' outline), and without a static layer the long-term voxels
+above that height in a band along the two sides of the map nearest the viewer (where the front
+walls are) are left out; the title says what is cut. The z axis starts at the floor; a map of
+one height (a 2D laser alone) gets a legend entry for its height instead of a colour bar.
+
 The environment variable ``LTMAP_RENDER3D`` (``open3d`` | ``matplotlib``) forces a renderer;
 ``renderer=`` does the same per call.
 """
@@ -30,6 +36,9 @@ HEIGHT_CMAP = "viridis"  # perceptually uniform, colour-blind safe
 MAX_POINTS = 50_000
 MAX_FACES = 40_000
 PROBE_TIMEOUT_S = 60.0
+WALL_CUT_Z = 0.3  # m: walls are drawn up to this height
+FRONT_BAND = 0.4  # m: without a static layer, voxels this close to the near sides are cut like walls
+VIEW_ELEV, VIEW_AZIM = 42, -60  # the matplotlib view: the viewer stands at low y and high x
 
 # face directions and the brightness each one gets (a fixed light from above, front-left)
 _DIRS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]])
@@ -147,6 +156,27 @@ def visible_faces(centers: np.ndarray, resolution: float):
     return np.concatenate(vox), np.concatenate(dirs)
 
 
+def cutaway(centers, values, static_centers, resolution: float, cut_z: float = WALL_CUT_Z,
+            band: float = FRONT_BAND):  # fmt: skip
+    """(centers, values, static centers, what was cut: a phrase for the title or ""): static voxels
+    above ``cut_z`` left out; without static voxels, the voxels above ``cut_z`` within ``band`` of
+    the two sides of the map nearest the viewer (low y, high x; the front walls) left out."""
+    c = np.asarray(centers, dtype=float).reshape(-1, 3)
+    v = None if values is None else np.asarray(values, dtype=float).ravel()
+    s = None if static_centers is None else np.asarray(static_centers, dtype=float).reshape(-1, 3)
+    cut = c[:, 2] - resolution / 2 >= cut_z - 1e-9  # a voxel whose bottom is at or above the cut
+    if s is not None and len(s):
+        s = s[s[:, 2] - resolution / 2 < cut_z - 1e-9]
+        return c, v, s, f"static walls (grey) cut at {cut_z:g} m"
+    if not len(c) or np.ptp(c[:, 0]) < 4 * band or np.ptp(c[:, 1]) < 4 * band:
+        return c, v, s, ""
+    front = (c[:, 1] <= c[:, 1].min() + band) | (c[:, 0] >= c[:, 0].max() - band)
+    drop = cut & front
+    if not drop.any():
+        return c, v, s, ""
+    return c[~drop], (None if v is None else v[~drop]), s, f"front walls cut at {cut_z:g} m"
+
+
 def _prepare(centers, values, static_centers, resolution, color_by, max_points):
     """Voxel centres, RGB colours (N, 3) and the colour scale of the picture."""
     from matplotlib import colormaps
@@ -166,8 +196,8 @@ def _prepare(centers, values, static_centers, resolution, color_by, max_points):
     else:
         scalar, label = c[:, 2], "height z [m]"
     lo, hi = (float(scalar.min()), float(scalar.max())) if len(scalar) else (0.0, 1.0)
-    if hi <= lo:
-        lo, hi = lo - 0.5, hi + 0.5
+    if hi <= lo:  # one value: the colour bar gives way to a legend entry (see _render_matplotlib)
+        hi = lo + 1e-9
     norm = Normalize(lo, hi)
     cmap = colormaps[HEIGHT_CMAP]
     rgb = (
@@ -188,6 +218,14 @@ def _quads(centers, rgb, size):
 
 
 def _render_matplotlib(path, centers, rgb, n_static, scale, size, title, width, height) -> None:
+    from ..io.atomic import atomic_path
+
+    fig = _matplotlib_figure(centers, rgb, n_static, scale, size, title, width, height)
+    with atomic_path(path) as tmp:  # no tight bbox: the picture keeps the asked width x height
+        fig.savefig(tmp, format="png", dpi=fig.dpi)
+
+
+def _matplotlib_figure(centers, rgb, n_static, scale, size, title, width, height):
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.cm import ScalarMappable
     from matplotlib.figure import Figure
@@ -195,13 +233,11 @@ def _render_matplotlib(path, centers, rgb, n_static, scale, size, title, width, 
     from matplotlib.ticker import MaxNLocator
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
-    from ..io.atomic import atomic_path
-
     dpi = 100
     fig = Figure(figsize=(width / dpi, height / dpi), dpi=dpi)
     FigureCanvasAgg(fig)
     ax = fig.add_axes((0.0, 0.02, 0.86, 0.92), projection="3d")
-    ax.view_init(elev=42, azim=-60)
+    ax.view_init(elev=VIEW_ELEV, azim=VIEW_AZIM)
     if len(centers):
         lo = centers.min(axis=0) - size / 2
         hi = centers.max(axis=0) + size / 2
@@ -211,12 +247,15 @@ def _render_matplotlib(path, centers, rgb, n_static, scale, size, title, width, 
     else:
         lo, hi = np.zeros(3), np.ones(3)
         ax.text2D(0.5, 0.5, "empty map", transform=ax.transAxes, ha="center", color="0.4", style="italic")
+    lo[2] = min(lo[2], 0.0)  # z from the floor: a laser-only map is a layer at the laser's height
+    hi[2] = max(hi[2], lo[2] + 0.5)
     span = np.maximum(hi - lo, size)
     ax.set_xlim(lo[0], lo[0] + span[0])
     ax.set_ylim(lo[1], lo[1] + span[1])
     ax.set_zlim(lo[2], lo[2] + span[2])
     ax.set_box_aspect(tuple(span / span.max()), zoom=0.95)
-    ax.zaxis.set_major_locator(MaxNLocator(nbins=max(2, round(8 * span[2] / span.max()))))
+    ax.zaxis.set_major_locator(MaxNLocator(nbins=max(2, min(6, round(8 * span[2] / span.max()) + 1)),
+                                           steps=[1, 2, 2.5, 5, 10]))  # fmt: skip
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_zlabel("z [m]")
@@ -226,19 +265,20 @@ def _render_matplotlib(path, centers, rgb, n_static, scale, size, title, width, 
     ax.set_title(title or "3D map")
     cmap, norm, label = scale
     n_dyn = len(centers) - n_static
-    if n_dyn:
+    handles = []
+    if n_dyn and norm.vmax - norm.vmin > 1e-6:
         sm = ScalarMappable(norm=norm, cmap=cmap)
         cax = fig.add_axes((0.88, 0.25, 0.018, 0.5))
         fig.colorbar(sm, cax=cax, label=label)
+    elif n_dyn:  # one height (or value): a colour bar would span nothing
+        what = "height" if label.startswith("height") else "value"
+        at = f"z = {norm.vmin:.2f} m" if what == "height" else f"value {norm.vmin:.2f}"
+        handles.append(Patch(facecolor=rgb[0], edgecolor="0.4", label=f"long-term voxels ({at})"))
     if n_static:
-        ax.legend(
-            handles=[Patch(facecolor=STATIC_RGB, edgecolor="0.4", label="static layer")],
-            loc="upper left",
-            fontsize="small",
-            frameon=False,
-        )
-    with atomic_path(path) as tmp:  # no tight bbox: the picture keeps the asked width x height
-        fig.savefig(tmp, format="png", dpi=dpi)
+        handles.append(Patch(facecolor=STATIC_RGB, edgecolor="0.4", label="static layer"))
+    if handles:
+        ax.legend(handles=handles, loc="upper left", fontsize="small", frameon=False)
+    return fig
 
 
 def _render_open3d(path, centers, rgb, size, width, height) -> None:
@@ -273,6 +313,29 @@ def _render_open3d(path, centers, rgb, size, width, height) -> None:
             raise RuntimeError("open3d could not write the image")
 
 
+def _cut_and_title(centers, values, static_centers, resolution, title, color_by):
+    """``cutaway``'s voxels, and the title: the caller's, or one that says what is shown; either
+    way it says what was cut."""
+    centers, values, static_centers, cut = cutaway(centers, values, static_centers, resolution)
+    if not title:
+        coloured = "by value" if color_by == "value" and values is not None else "by height"
+        title = f"final map: long-term voxels coloured {coloured}" if len(centers) else "final map: no long-term voxels"
+        if cut:
+            title += f"; {cut}"
+    elif cut:
+        title += f" ({cut})"
+    return centers, values, static_centers, title
+
+
+def figure_3d(centers, values, resolution: float, *, static_centers=None, title: str | None = None,
+              width: int = 1280, height: int = 960, color_by: str = "height", max_points: int = MAX_POINTS):  # fmt: skip
+    """The matplotlib figure ``render_map_3d`` draws (without merging for ``max_faces``)."""
+    centers, values, static_centers, title = _cut_and_title(centers, values, static_centers, resolution, title,
+                                                           color_by)  # fmt: skip
+    allc, rgb, n_static, scale, k = _prepare(centers, values, static_centers, resolution, color_by, max_points)
+    return _matplotlib_figure(allc, rgb, n_static, scale, k * resolution, title, width, height)
+
+
 def render_map_3d(
     path_png: Path,
     centers: np.ndarray,
@@ -280,7 +343,7 @@ def render_map_3d(
     resolution: float,
     *,
     static_centers: np.ndarray | None = None,
-    title: str = "",
+    title: str | None = None,
     width: int = 1280,
     height: int = 960,
     renderer: str = "auto",
@@ -297,9 +360,12 @@ def render_map_3d(
     renderer works, else matplotlib; ``LTMAP_RENDER3D`` overrides) or ``matplotlib``; ``open3d``
     is the same as ``auto``: open3d is never used in-process unless the probe passed, and if it
     fails after all, matplotlib draws the picture. Above ``max_points`` voxels both sets are
-    merged onto a coarser grid (the title says so)."""
+    merged onto a coarser grid (the title says so). Walls are cut (``cutaway``). Without a
+    ``title`` the picture's says what it shows."""
     if resolution <= 0 or not math.isfinite(resolution):
         raise ValueError(f"resolution must be > 0, got {resolution}")
+    centers, values, static_centers, title = _cut_and_title(centers, values, static_centers, resolution, title,
+                                                           color_by)  # fmt: skip
     choice = renderer if renderer != "auto" else os.environ.get("LTMAP_RENDER3D", "auto")
     if choice not in ("auto", "open3d", "matplotlib"):
         raise ValueError(f"unknown renderer {choice!r}")
