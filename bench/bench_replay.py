@@ -165,7 +165,10 @@ def child(name: str, log: Path, static: Path, out: Path) -> None:
     import ltmap_cli
     from ltmap_cli.config import Config
     from ltmap_cli.core.projection import project
-    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+    try:
+        from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+    except ImportError:  # --before a commit older than the pipeline package
+        from ltmap_cli.replay import Replay, ReplayRequest
 
     fast, threads, rate = CONFIGS[name]
     # warm-up: a short replay of the house sample, so that every numba kernel is compiled or
