@@ -26,7 +26,18 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import _PACK_BITS, _PACK_OFFSET, BLOCK_BITS, _slot, get_or_add_block, pack_block, voxel_offset
+from .grid import (
+    _PACK_BITS,
+    _PACK_OFFSET,
+    BLOCK_BITS,
+    BLOCK_MASK,
+    BLOCK_VOXELS,
+    _slot,
+    find_block,
+    get_or_add_block,
+    pack_block,
+    voxel_offset,
+)
 
 RAY_SKIP = 0  # dropped (NaN)
 RAY_CLEAR = 1  # clears up to its end, end marks nothing
@@ -35,6 +46,7 @@ RAY_HIT = 2  # clears up to its end, end voxel is a hit
 STATUS_DONE = 0
 STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
+STATUS_NEED_CHANGED = 3
 SEEN_MAX_WORDS = 1 << 23  # 64 MB, 537 M voxels: a frame whose box is bigger takes the sparse bitmap
 
 
@@ -197,27 +209,138 @@ def _seen_bit(seen, bit):
 
 @njit(cache=True, nogil=True)
 def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                 state):  # fmt: skip
+                 state, qkeys, qon, bgrid, bmeta):  # fmt: skip
     """See ``_frame_voxels``: the dense bitmap's loop, or the sparse one's when the frame's box is
-    too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not)."""
+    too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not).
+    ``qkeys``/``qon``: the quiet blocks' table (``quiet_table_set``; empty: none), laid over the
+    frame's box in ``bgrid`` (``_quiet_setup``); ``seen_meta[11] == 4``: ``bgrid`` must grow to
+    ``bmeta[7]`` cells first (the frame starts again)."""
     if state[0] == 0:  # a new frame
         seen_meta[9] = 0  # a new generation of the sparse bitmap: empty
         seen_meta[10] += 1
         if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
             seen_meta[11] = 1
             return False
+        if not _quiet_setup(seen_meta, qkeys, qon, bgrid, bmeta):
+            seen_meta[11] = 4
+            return False
         state[0] = 1
     seen_meta[11] = 0
     if seen_meta[0] != 0:
         return _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen,
-                             sp_vals, sp_words, state)  # fmt: skip
+                             sp_vals, sp_words, state, bgrid, bmeta)  # fmt: skip
     return _frame_voxels(origin, ends, kind, inv_res, res, None, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals,
-                         sp_words, state)  # fmt: skip
+                         sp_words, state, bgrid, bmeta)  # fmt: skip
+
+
+QUIET_MAX_CELLS = 1 << 22  # a frame whose box spans more blocks skips no quiet block (4 MB of grid)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _qtable_find(qkeys, packed):
+    """Slot of ``packed`` in the quiet table, or -1."""
+    mask = qkeys.shape[0] - 1
+    s = _slot(packed, mask)
+    while True:
+        k = qkeys[s]
+        if k == packed:
+            return s
+        if k == -1:
+            return np.int64(-1)
+        s = (s + 1) & mask
+
+
+@njit(cache=True, nogil=True)
+def _quiet_setup(seen_meta, qkeys, qon, bgrid, bmeta):
+    """Lay the quiet blocks over the frame's box: ``bgrid`` (one cell per block of the box: 1
+    quiet, 0 not; ``_frame_voxels`` sets 2 where a ray passed) and ``bmeta`` = [on, bi0, bj0,
+    bk0, bnx, bny, bnz, cells]. Off without a dense box, quiet blocks or with a huge box. Returns
+    False when ``bgrid`` is too small (the caller grows it to ``bmeta[7]``)."""
+    bmeta[0] = 0
+    if seen_meta[0] == 0 or qkeys.shape[0] == 0:
+        return True
+    bi0 = seen_meta[1] >> BLOCK_BITS
+    bj0 = seen_meta[2] >> BLOCK_BITS
+    bk0 = seen_meta[3] >> BLOCK_BITS
+    bnx = ((seen_meta[1] + seen_meta[4] - 1) >> BLOCK_BITS) - bi0 + 1
+    bny = ((seen_meta[2] + seen_meta[5] - 1) >> BLOCK_BITS) - bj0 + 1
+    bnz = ((seen_meta[3] + seen_meta[6] - 1) >> BLOCK_BITS) - bk0 + 1
+    if np.float64(bnx) * np.float64(bny) * np.float64(bnz) > QUIET_MAX_CELLS:
+        return True
+    n = bnx * bny * bnz
+    bmeta[7] = n
+    if n > bgrid.shape[0]:
+        return False
+    if n <= qkeys.shape[0]:  # look each block of the box up
+        c = 0
+        for a in range(bnx):
+            for b in range(bny):
+                for d in range(bnz):
+                    s = _qtable_find(qkeys, pack_block(bi0 + a, bj0 + b, bk0 + d))
+                    bgrid[c] = qon[s] if s >= 0 else 0
+                    c += 1
+    else:  # fewer table slots than blocks in the box: walk the table
+        bgrid[:n] = 0
+        for s in range(qkeys.shape[0]):
+            p = qkeys[s]
+            if p == -1 or qon[s] == 0:
+                continue
+            a = (p >> 42) - KEY_OFFSET - bi0
+            b = ((p >> 21) & KEY_MASK) - KEY_OFFSET - bj0
+            d = (p & KEY_MASK) - KEY_OFFSET - bk0
+            if 0 <= a < bnx and 0 <= b < bny and 0 <= d < bnz:
+                bgrid[(a * bny + b) * bnz + d] = 1
+    bmeta[1], bmeta[2], bmeta[3] = bi0, bj0, bk0
+    bmeta[4], bmeta[5], bmeta[6] = bnx, bny, bnz
+    bmeta[0] = 1
+    return True
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _quiet_at(ci, cj, ck, bgrid, bmeta):
+    """1 when voxel (ci, cj, ck) lies in a quiet block of the frame's grid (which then records
+    that a ray passed it: 2), else 0."""
+    if bmeta[0] == 0:
+        return 0
+    a = (ci >> BLOCK_BITS) - bmeta[1]
+    b = (cj >> BLOCK_BITS) - bmeta[2]
+    d = (ck >> BLOCK_BITS) - bmeta[3]
+    if a < 0 or a >= bmeta[4] or b < 0 or b >= bmeta[5] or d < 0 or d >= bmeta[6]:
+        return 0
+    c = (a * bmeta[5] + b) * bmeta[6] + d
+    v = bgrid[c]
+    if v == 1:
+        bgrid[c] = 2
+    return 1 if v != 0 else 0
+
+
+@njit(cache=True, nogil=True)
+def quiet_passed(bgrid, bmeta):
+    """Packed keys (``grid.pack_block``) of the quiet blocks this frame's rays passed without
+    listing their voxels."""
+    if bmeta[0] == 0:
+        return np.empty(0, dtype=np.int64)
+    bnx, bny, bnz = bmeta[4], bmeta[5], bmeta[6]
+    n = 0
+    for c in range(bnx * bny * bnz):
+        if bgrid[c] == 2:
+            n += 1
+    out = np.empty(n, dtype=np.int64)
+    n = 0
+    c = 0
+    for a in range(bnx):
+        for b in range(bny):
+            for d in range(bnz):
+                if bgrid[c] == 2:
+                    out[n] = pack_block(bmeta[1] + a, bmeta[2] + b, bmeta[3] + d)
+                    n += 1
+                c += 1
+    return out
 
 
 @njit(cache=True, nogil=True)
 def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                  state):  # fmt: skip
+                  state, bgrid, bmeta):  # fmt: skip
     """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
     packed keys (``grid.pack_block``): hits into ``hits[:state[2]]`` (at most one per ray), misses into
     ``misses[:state[3]]``. Returns True when done; False when a buffer must grow first:
@@ -233,7 +356,13 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
     drops the repeats (a dense depth frame steps through each voxel about 15 times, every ray
     passing the voxels near the camera); when the box is too big for a dense bitmap (long lidar
     rays, fine resolutions) a sparse one (``_sparse_visit``) takes every voxel. Reads no map
-    state, so it may run in another thread than ``apply_voxels``."""
+    state, so it may run in another thread than ``apply_voxels``.
+
+    Quiet blocks (``bgrid``, see ``_quiet_setup``): a ray passing a block that was quiet when the
+    frame was cast lists none of its voxels there (a miss there changes nothing: see
+    ``apply_voxels_kernel``) and the block is recorded as passed (``quiet_passed``), for
+    ``apply_voxels`` to check that it is still quiet when the frame is applied. Hits are listed
+    wherever they are."""
     si0, sj0, sk0 = seen_meta[1], seen_meta[2], seen_meta[3]
     snx, sny, snz = seen_meta[4], seen_meta[5], seen_meta[6]
     usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
@@ -318,10 +447,17 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             return False
         lin = ((ci - si0) * sny + (cj - sj0)) * snz + (ck - sk0)  # bit of (ci, cj, ck) when in the box
         lsx, lsy, lsz = si * sny * snz, sj * snz, sk
+        # the voxel's coordinate within its block when a step has just entered a new block
+        edge_x = 0 if si > 0 else BLOCK_MASK
+        edge_y = 0 if sj > 0 else BLOCK_MASK
+        edge_z = 0 if sk > 0 else BLOCK_MASK
+        quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
         while True:
             # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss, unless this
-            # frame updated it already
-            if seen is None:  # the sparse bitmap (numba compiles this loop twice: seen None or not)
+            # frame updated it already or it lies in a quiet block
+            if quiet != 0:
+                first = 0
+            elif seen is None:  # the sparse bitmap (numba compiles this loop twice: seen None or not)
                 first = _sparse_visit(ci, cj, ck, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, sp_cache)
                 if first < 0:
                     seen_meta[11] = 3
@@ -347,14 +483,20 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
                 ci += si
                 tmx += tdx
                 lin += lsx
+                if (ci & BLOCK_MASK) == edge_x:
+                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
             elif dim == 1:
                 cj += sj
                 tmy += tdy
                 lin += lsy
+                if (cj & BLOCK_MASK) == edge_y:
+                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
             else:
                 ck += sk
                 tmz += tdz
                 lin += lsz
+                if (ck & BLOCK_MASK) == edge_z:
+                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
             if ci == ei and cj == ej and ck == ek:
                 break
             dist = min(tmx, min(tmy, tmz))
@@ -374,23 +516,35 @@ def apply_voxels_kernel(
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
     phase, start, counters,
+    nfree, quiet, use_quiet, changed, ch_meta,
 ):  # fmt: skip
     """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
     grows storage and calls again from there. A voxel whose stamp is this frame's was updated
     already: it is left alone (``frame_voxels`` lists each voxel once, so this is a guard), so
     each voxel is updated once per frame and a hit wins over a miss. ``counters`` accumulates
-    [hits applied, misses applied]."""
+    [hits applied, misses applied].
+
+    Quiet blocks (``use_quiet``): ``nfree[b]`` counts the voxels of O block b at ``lo_min``
+    (clamped free), kept here; ``quiet[b]`` (set by ``quiet_update`` between frames: all 512
+    voxels clamped free and no D block there) is read as it was when the frame began. A miss in
+    a quiet block is no update: its log-odds would stay at ``lo_min``, and the tick rules have
+    nothing to do for a clamped-free voxel without ST or LT, so it is neither stamped nor put in
+    the tick buffer. Blocks whose count reached or left 512 are appended to ``changed``
+    (``ch_meta[0]`` of them) for ``quiet_update``."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
     lo_max32 = np.float32(lo_max)
     n_tb = tb_meta[0]
     tb_cap = tb_block.shape[0]
+    n_ch = ch_meta[0]
+    ch_cap = changed.shape[0]
     last_bx = np.int64(-(1 << 40))
     last_by = np.int64(0)
     last_bz = np.int64(0)
     last_b = np.int64(-1)
+    last_q = False
     while phase < 2:
         keys = hits if phase == 0 else misses
         lo = hit_lo32 if phase == 0 else miss_lo32
@@ -406,8 +560,12 @@ def apply_voxels_kernel(
                 last_bx, last_by, last_bz = bx, by, bz
                 if last_b < 0:
                     tb_meta[0] = n_tb
+                    ch_meta[0] = n_ch
                     counters[phase] += n_done
                     return STATUS_NEED_BLOCKS, phase, r
+                last_q = use_quiet and phase == 1 and quiet[last_b] != 0
+            if last_q:
+                continue
             off = voxel_offset(i, j, k)
             st = stamp[last_b, off]
             if st == frame_id:
@@ -415,23 +573,129 @@ def apply_voxels_kernel(
             if st < tick_first:
                 if n_tb >= tb_cap:
                     tb_meta[0] = n_tb
+                    ch_meta[0] = n_ch
                     counters[phase] += n_done
                     return STATUS_NEED_TICK_BUFFER, phase, r
                 tb_block[n_tb] = last_b
                 tb_off[n_tb] = off
                 n_tb += 1
-            v = logodds[last_b, off] + lo
+            if use_quiet and n_ch >= ch_cap:
+                tb_meta[0] = n_tb
+                ch_meta[0] = n_ch
+                counters[phase] += n_done
+                return STATUS_NEED_CHANGED, phase, r
+            old = logodds[last_b, off]
+            v = old + lo
             if phase == 0:
-                logodds[last_b, off] = lo_max32 if v > lo_max32 else v
+                v = lo_max32 if v > lo_max32 else v
             else:
-                logodds[last_b, off] = lo_min32 if v < lo_min32 else v
+                v = lo_min32 if v < lo_min32 else v
+            logodds[last_b, off] = v
             stamp[last_b, off] = frame_id
             n_done += 1
+            if use_quiet and (old == lo_min32) != (v == lo_min32):
+                if v == lo_min32:
+                    nfree[last_b] += 1
+                    if nfree[last_b] == BLOCK_VOXELS:
+                        changed[n_ch] = last_b
+                        n_ch += 1
+                else:
+                    if nfree[last_b] == BLOCK_VOXELS:
+                        changed[n_ch] = last_b
+                        n_ch += 1
+                    nfree[last_b] -= 1
         counters[phase] += n_done
         phase += 1
         start = 0
+        last_b = np.int64(-1)
     tb_meta[0] = n_tb
+    ch_meta[0] = n_ch
     return STATUS_DONE, 2, 0
+
+
+@njit(cache=True, nogil=True)
+def quiet_table_set(qkeys, qon, qmeta, packed, on):
+    """Block ``packed`` quiet (``on`` 1) or not (0) in the quiet table (open addressing, keys
+    only ever added; ``qmeta[0]`` keys). False when a new key would fill it past half (the caller
+    makes a bigger table with ``quiet_table_rehash`` and calls again)."""
+    mask = qkeys.shape[0] - 1
+    s = _slot(packed, mask)
+    while True:
+        k = qkeys[s]
+        if k == packed:
+            qon[s] = on
+            return True
+        if k == -1:
+            break
+        s = (s + 1) & mask
+    if on == 0:
+        return True
+    if 2 * (qmeta[0] + 1) > qkeys.shape[0]:
+        return False
+    qon[s] = on  # the value before the key: a reader finding the key finds its value
+    qkeys[s] = packed
+    qmeta[0] += 1
+    return True
+
+
+@njit(cache=True, nogil=True)
+def quiet_table_rehash(qkeys, qon, slots):
+    """A new table of ``slots`` slots with the quiet entries of (qkeys, qon), and their count."""
+    keys = np.full(slots, -1, dtype=np.int64)
+    on = np.zeros(slots, dtype=np.uint8)
+    mask = slots - 1
+    n = 0
+    for s in range(qkeys.shape[0]):
+        if qkeys[s] == -1 or qon[s] == 0:
+            continue
+        t = _slot(qkeys[s], mask)
+        while keys[t] != -1:
+            t = (t + 1) & mask
+        keys[t] = qkeys[s]
+        on[t] = 1
+        n += 1
+    return keys, on, n
+
+
+@njit(cache=True, nogil=True)
+def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals, qkeys, qon, qmeta, start):
+    """Set ``quiet[b]`` for the O blocks ``blocks[start:n]``: all 512 voxels clamped free
+    (``nfree[b] == 512``) and no D block at the same coordinates; the quiet table follows.
+    Returns the index to resume from when the table must grow first, else -1."""
+    for t in range(start, n):
+        b = blocks[t]
+        bx, by, bz = block_coords[b, 0], block_coords[b, 1], block_coords[b, 2]
+        q = nfree[b] == BLOCK_VOXELS and find_block(d_keys, d_vals, bx, by, bz) < 0
+        if q == (quiet[b] != 0):
+            continue
+        if not quiet_table_set(qkeys, qon, qmeta, pack_block(bx, by, bz), 1 if q else 0):
+            return t
+        quiet[b] = 1 if q else 0
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def quiet_count(logodds, n_blocks, lo_min, nfree):
+    """``nfree[b]``: voxels of block b at ``lo_min``, for the first ``n_blocks`` blocks."""
+    lo32 = np.float32(lo_min)
+    for b in range(n_blocks):
+        c = 0
+        for off in range(BLOCK_VOXELS):
+            if logodds[b, off] == lo32:
+                c += 1
+        nfree[b] = c
+
+
+@njit(cache=True, nogil=True)
+def quiet_check(passed, table_keys, table_vals, quiet):
+    """True when every block of ``passed`` (packed block keys) is a quiet O block now."""
+    for t in range(passed.shape[0]):
+        p = passed[t]
+        b = find_block(table_keys, table_vals, (p >> 42) - KEY_OFFSET, ((p >> 21) & KEY_MASK) - KEY_OFFSET,
+                       (p & KEY_MASK) - KEY_OFFSET)  # fmt: skip
+        if b < 0 or quiet[b] == 0:
+            return False
+    return True
 
 
 @njit(cache=True, nogil=True, inline="always")
