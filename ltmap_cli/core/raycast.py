@@ -460,26 +460,33 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
                 bx, by, bz = ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS
                 if bx != ebx or by != eby or bz != ebz:
                     # through a quiet block that does not hold the end voxel: nothing to list until
-                    # the ray leaves it, so step without listing or stop tests (branch-free: the
-                    # same choices and sums as the steps below), then test once. The stop tests
+                    # the ray leaves it, so step without listing or stop tests (the same choices
+                    # and sums as the steps below), then test once. The stop tests
                     # are monotone (dist never falls, steps only grow) and the end voxel is not in
                     # this block, so testing after the block's last step stops where stepping
                     # one by one would have, with nothing listed in between.
                     k = 0
-                    while True:
-                        a = tmx < tmy
-                        m0 = a & (tmx < tmz)
-                        m1 = (not a) & (tmy < tmz)
-                        m2 = not (m0 | m1)
-                        ci += si if m0 else 0
-                        cj += sj if m1 else 0
-                        ck += sk if m2 else 0
-                        tmx = tmx + tdx if m0 else tmx
-                        tmy = tmy + tdy if m1 else tmy
-                        tmz = tmz + tdz if m2 else tmz
-                        lin += (lsx if m0 else 0) + (lsy if m1 else 0) + (lsz if m2 else 0)
+                    while True:  # the choices of the steps below, until a step leaves the block
                         k += 1
-                        if ((ci >> BLOCK_BITS) != bx) | ((cj >> BLOCK_BITS) != by) | ((ck >> BLOCK_BITS) != bz):
+                        if tmx < tmy:
+                            if tmx < tmz:
+                                ci += si
+                                tmx += tdx
+                                lin += lsx
+                                if (ci & BLOCK_MASK) == edge_x:
+                                    break
+                                continue
+                        elif tmy < tmz:
+                            cj += sj
+                            tmy += tdy
+                            lin += lsy
+                            if (cj & BLOCK_MASK) == edge_y:
+                                break
+                            continue
+                        ck += sk
+                        tmz += tdz
+                        lin += lsz
+                        if (ck & BLOCK_MASK) == edge_z:
                             break
                     if ci == ei and cj == ej and ck == ek:
                         break
