@@ -44,10 +44,7 @@ from .raycast import (
     dedupe_endpoints,
     depth_image_rays,
     frame_voxels,
-    quiet_check,
     quiet_count,
-    quiet_passed,
-    quiet_table_rehash,
     quiet_update,
     sparse_grown,
 )
@@ -454,35 +451,9 @@ def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
             np.zeros(4 * slots, dtype=np.uint64))  # fmt: skip
 
 
-_NO_QUIET = (np.full(0, -1, dtype=np.int64), np.zeros(0, dtype=np.uint8))
-_NO_PASSED = np.empty(0, dtype=np.int64)
-
-
-class FrameVoxels(tuple):
-    """``frame_voxels``' answer: ``(hits, misses)`` (unpacks as such), with ``passed`` (packed
-    keys of the quiet blocks its rays skipped) and ``rays`` ((origin, ends, kind) when it skipped
-    any: ``apply_voxels`` casts the frame again with them if one of those blocks changed)."""
-
-    def __new__(cls, hits, misses, passed, rays):
-        self = super().__new__(cls, (hits, misses))
-        self.passed = passed
-        self.rays = rays
-        return self
-
-    @property
-    def hits(self) -> np.ndarray:
-        return self[0]
-
-    @property
-    def misses(self) -> np.ndarray:
-        return self[1]
-
-
 class _QuietBlocks:
-    """The main thread's record of quiet O blocks (see ``LayeredMap.apply_voxels``): per O block
-    the count of voxels clamped free and the quiet flag, and the table of quiet block keys that
-    the casting threads read (``LayeredMap._qtable``; a bigger table is a new pair of arrays, so
-    a thread holding the old one reads a consistent, older state: its skips are checked anyway)."""
+    """The record of quiet O blocks that ``LayeredMap.apply_voxels`` keeps: per O block the count
+    of voxels clamped free (``nfree``) and the quiet flag (``quiet``)."""
 
     def __init__(self, lmap: LayeredMap, lo_min: float):
         o = lmap.O
@@ -491,12 +462,8 @@ class _QuietBlocks:
         self.quiet = np.zeros(o.max_blocks, dtype=np.uint8)
         self.changed = np.empty(1 << 12, dtype=np.int64)
         self.ch_meta = np.zeros(1, dtype=np.int64)
-        self.qmeta = np.zeros(1, dtype=np.int64)
-        lmap._qtable = (np.full(1 << 10, -1, dtype=np.int64), np.zeros(1 << 10, dtype=np.uint8))
         n = o.n_blocks
         quiet_count(o.data["logodds"], n, lo_min, self.nfree)
-        self.d = None
-        self.d_blocks = -1
         self.update(lmap, n, np.arange(n, dtype=np.int64))
 
     def fit(self, max_blocks: int) -> None:
@@ -506,19 +473,11 @@ class _QuietBlocks:
             self.quiet = np.concatenate([self.quiet, np.zeros(extra, dtype=self.quiet.dtype)])
 
     def update(self, lmap: LayeredMap, n: int, blocks: np.ndarray | None = None) -> None:
-        """Quiet flags (and the table) of ``blocks[:n]`` (default: those the last frame changed)."""
-        blocks = self.changed if blocks is None else blocks
+        """Quiet flags of ``blocks[:n]`` (default: those whose count the last frame moved to or
+        from 512)."""
         d, o = lmap.D, lmap.O
-        start = 0
-        while True:
-            qkeys, qon = lmap._qtable
-            start = quiet_update(blocks, n, self.nfree, self.quiet, o.block_coords, d.table_keys, d.table_vals, qkeys,
-                                 qon, self.qmeta, start)  # fmt: skip
-            if start < 0:
-                break
-            keys, on, cnt = quiet_table_rehash(qkeys, qon, 2 * len(qkeys))
-            self.qmeta[0] = cnt
-            lmap._qtable = (keys, on)  # published whole: casting threads see the old pair or this one
+        quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.quiet, o.block_coords,
+                     d.table_keys, d.table_vals)  # fmt: skip
         self.d, self.d_blocks = d, d.n_blocks
 
     def revalidate(self, lmap: LayeredMap) -> None:
@@ -532,9 +491,7 @@ class LayeredMap:
     """S, O, ST and LT on one voxel lattice, with SPEC 2's update rules."""
 
     quiet_blocks = True  # misses in quiet blocks are skipped (see apply_voxels); False: every miss updates
-    quiet_recasts = 0  # frames cast again because a quiet block their rays skipped had changed
     _quiet: _QuietBlocks | None = None
-    _qtable = _NO_QUIET
 
     def __init__(self, cfg: MapConfig | None = None, static: StaticGrid | None = None):
         self.cfg = cfg or MapConfig()
@@ -695,19 +652,13 @@ class LayeredMap:
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
         """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(frame_voxels(...))``."""
-        fv = self.frame_voxels(origin, ends, kind, quiet=True)
-        return self.apply_voxels(fv.hits, fv.misses, int((kind > 0).sum()), fv)
+        hits, misses = self.frame_voxels(origin, ends, kind)
+        return self.apply_voxels(hits, misses, int((kind > 0).sum()))
 
-    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray, quiet: bool = False) -> FrameVoxels:
+    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The voxels these rays update, each once, in update order: (hits, misses), packed keys
-        (``core.raycast.frame_voxels``: the DDA). Reads no map state but the quiet blocks' table
-        (``quiet``), so it may run in other threads than ``apply_voxels`` (each thread has its own
-        scratch bitmap).
-
-        With ``quiet``, rays list no voxel in blocks that were quiet when the frame was cast (see
-        ``apply_voxels``): hand the result to ``apply_voxels`` as its ``frame``, which checks those
-        blocks are quiet still (frames applied in between may have changed them) and casts the
-        frame again when one is not."""
+        (``core.raycast.frame_voxels``: the DDA). Reads no map state, so it may run in other
+        threads than ``apply_voxels`` (each thread has its own scratch bitmap)."""
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
         scratch = self._scratch
         if not hasattr(scratch, "seen"):
@@ -715,10 +666,6 @@ class LayeredMap:
             scratch.meta = np.zeros(12, dtype=np.int64)
             scratch.misses = np.empty(1 << 16, dtype=np.int64)
             scratch.sparse = _sparse_bitmap(1 << 10)
-        if not hasattr(scratch, "bgrid"):
-            scratch.bgrid = np.zeros(1 << 12, dtype=np.uint8)
-            scratch.bmeta = np.zeros(8, dtype=np.int64)
-        qkeys, qon = self._qtable if (quiet and self.quiet_blocks) else _NO_QUIET
         meta = scratch.meta
         meta[8] = self.seen_max_words
         inv_res = 1.0 / self.resolution
@@ -727,7 +674,7 @@ class LayeredMap:
         checked = False
         while True:
             ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, meta, hits, scratch.misses,
-                              *scratch.sparse, state, qkeys, qon, scratch.bgrid, scratch.bmeta)  # fmt: skip
+                              *scratch.sparse, state)  # fmt: skip
             if state[0] > 0 and not checked:  # the frame's box is known: within the keys' extent?
                 # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
                 lo = (meta[1:4] + SEEN_PAD) * self.resolution
@@ -739,12 +686,9 @@ class LayeredMap:
                 # hand the buffer over with the list (no copy) and start the next frame's buffer at
                 # the size this one needed, with room to spare
                 scratch.misses = np.empty(max(1 << 16, state[3] + state[3] // 4), dtype=np.int64)
-                passed = quiet_passed(scratch.bgrid, scratch.bmeta) if len(qkeys) else _NO_PASSED
-                return FrameVoxels(hits[: state[2]], misses, passed, (origin, ends, kind) if len(passed) else None)
+                return hits[: state[2]], misses
             if meta[11] == 1:  # before any voxel is listed: the frame starts again
                 scratch.seen = np.empty(int(meta[7]), dtype=np.uint64)
-            elif meta[11] == 4:  # the quiet grid, likewise
-                scratch.bgrid = np.zeros(int(scratch.bmeta[7]), dtype=np.uint8)
             elif meta[11] == 2:  # go on where it stopped, with what is listed
                 bigger = np.empty(2 * len(scratch.misses), dtype=np.int64)
                 bigger[: state[3]] = scratch.misses[: state[3]]
@@ -752,30 +696,20 @@ class LayeredMap:
             else:
                 scratch.sparse = sparse_grown(*scratch.sparse, meta[10], 4 * len(scratch.sparse[0]))
 
-    def apply_voxels(
-        self, hits: np.ndarray, misses: np.ndarray, rays: int = 0, frame: FrameVoxels | None = None
-    ) -> FrameResult:
+    def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0) -> FrameResult:
         """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's
         stateful half, in the thread that owns the map.
 
         Quiet blocks (``quiet_blocks``, default on): an O block all of whose 512 voxels are
         clamped free (log-odds at ``clamp_min_logodds``) and that has no D block (no ST or LT
         anywhere in it) is quiet. A miss there changes nothing: the log-odds stay clamped, and the
-        tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a block
-        quiet when the frame begins is skipped whole: the voxel is not stamped again (its stamp
+        tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a block that
+        is quiet when the frame begins is skipped whole: the voxel is not stamped again (its stamp
         stays that of the frame that clamped it) nor put in the tick buffer. O's log-odds, D and
-        the events are those of updating every voxel; only those stamps differ. A hit un-quiets
-        its block (from the next frame on). Rays skip quiet blocks (``frame_voxels(quiet=True)``,
-        the 30 Hz camera's free space, most of its DDA steps); ``frame`` says which blocks they
-        skipped, and the frame is cast again here when one of them is no longer quiet."""
+        the events are those of updating every voxel; only those stamps differ (a voxel is known,
+        stamp > 0, exactly when it is either way). A hit un-quiets its block from the next frame
+        on. Decided here, in frame order, so every path (serial, threads) gives the same map."""
         q = self._quiet_sync()
-        if frame is not None and len(frame.passed):
-            o = self.O
-            if not quiet_check(frame.passed, o.table_keys, o.table_vals, q.quiet):
-                self.quiet_recasts += 1  # a block the rays skipped changed since the frame was cast
-                fv = self.frame_voxels(*frame.rays, quiet=True)
-                assert quiet_check(fv.passed, o.table_keys, o.table_vals, q.quiet)
-                hits, misses = fv.hits, fv.misses
         sc = self.cfg.sensor
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)

@@ -30,7 +30,6 @@ from .grid import (
     _PACK_BITS,
     _PACK_OFFSET,
     BLOCK_BITS,
-    BLOCK_MASK,
     BLOCK_VOXELS,
     _slot,
     find_block,
@@ -209,138 +208,27 @@ def _seen_bit(seen, bit):
 
 @njit(cache=True, nogil=True)
 def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                 state, qkeys, qon, bgrid, bmeta):  # fmt: skip
+                 state):  # fmt: skip
     """See ``_frame_voxels``: the dense bitmap's loop, or the sparse one's when the frame's box is
-    too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not).
-    ``qkeys``/``qon``: the quiet blocks' table (``quiet_table_set``; empty: none), laid over the
-    frame's box in ``bgrid`` (``_quiet_setup``); ``seen_meta[11] == 4``: ``bgrid`` must grow to
-    ``bmeta[7]`` cells first (the frame starts again)."""
+    too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not)."""
     if state[0] == 0:  # a new frame
         seen_meta[9] = 0  # a new generation of the sparse bitmap: empty
         seen_meta[10] += 1
         if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
             seen_meta[11] = 1
             return False
-        if not _quiet_setup(seen_meta, qkeys, qon, bgrid, bmeta):
-            seen_meta[11] = 4
-            return False
         state[0] = 1
     seen_meta[11] = 0
     if seen_meta[0] != 0:
         return _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen,
-                             sp_vals, sp_words, state, bgrid, bmeta)  # fmt: skip
+                             sp_vals, sp_words, state)  # fmt: skip
     return _frame_voxels(origin, ends, kind, inv_res, res, None, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals,
-                         sp_words, state, bgrid, bmeta)  # fmt: skip
-
-
-QUIET_MAX_CELLS = 1 << 22  # a frame whose box spans more blocks skips no quiet block (4 MB of grid)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _qtable_find(qkeys, packed):
-    """Slot of ``packed`` in the quiet table, or -1."""
-    mask = qkeys.shape[0] - 1
-    s = _slot(packed, mask)
-    while True:
-        k = qkeys[s]
-        if k == packed:
-            return s
-        if k == -1:
-            return np.int64(-1)
-        s = (s + 1) & mask
-
-
-@njit(cache=True, nogil=True)
-def _quiet_setup(seen_meta, qkeys, qon, bgrid, bmeta):
-    """Lay the quiet blocks over the frame's box: ``bgrid`` (one cell per block of the box: 1
-    quiet, 0 not; ``_frame_voxels`` sets 2 where a ray passed) and ``bmeta`` = [on, bi0, bj0,
-    bk0, bnx, bny, bnz, cells]. Off without a dense box, quiet blocks or with a huge box. Returns
-    False when ``bgrid`` is too small (the caller grows it to ``bmeta[7]``)."""
-    bmeta[0] = 0
-    if seen_meta[0] == 0 or qkeys.shape[0] == 0:
-        return True
-    bi0 = seen_meta[1] >> BLOCK_BITS
-    bj0 = seen_meta[2] >> BLOCK_BITS
-    bk0 = seen_meta[3] >> BLOCK_BITS
-    bnx = ((seen_meta[1] + seen_meta[4] - 1) >> BLOCK_BITS) - bi0 + 1
-    bny = ((seen_meta[2] + seen_meta[5] - 1) >> BLOCK_BITS) - bj0 + 1
-    bnz = ((seen_meta[3] + seen_meta[6] - 1) >> BLOCK_BITS) - bk0 + 1
-    if np.float64(bnx) * np.float64(bny) * np.float64(bnz) > QUIET_MAX_CELLS:
-        return True
-    n = bnx * bny * bnz
-    bmeta[7] = n
-    if n > bgrid.shape[0]:
-        return False
-    if n <= qkeys.shape[0]:  # look each block of the box up
-        c = 0
-        for a in range(bnx):
-            for b in range(bny):
-                for d in range(bnz):
-                    s = _qtable_find(qkeys, pack_block(bi0 + a, bj0 + b, bk0 + d))
-                    bgrid[c] = qon[s] if s >= 0 else 0
-                    c += 1
-    else:  # fewer table slots than blocks in the box: walk the table
-        bgrid[:n] = 0
-        for s in range(qkeys.shape[0]):
-            p = qkeys[s]
-            if p == -1 or qon[s] == 0:
-                continue
-            a = (p >> 42) - KEY_OFFSET - bi0
-            b = ((p >> 21) & KEY_MASK) - KEY_OFFSET - bj0
-            d = (p & KEY_MASK) - KEY_OFFSET - bk0
-            if 0 <= a < bnx and 0 <= b < bny and 0 <= d < bnz:
-                bgrid[(a * bny + b) * bnz + d] = 1
-    bmeta[1], bmeta[2], bmeta[3] = bi0, bj0, bk0
-    bmeta[4], bmeta[5], bmeta[6] = bnx, bny, bnz
-    bmeta[0] = 1
-    return True
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _quiet_at(ci, cj, ck, bgrid, bmeta):
-    """1 when voxel (ci, cj, ck) lies in a quiet block of the frame's grid (which then records
-    that a ray passed it: 2), else 0."""
-    if bmeta[0] == 0:
-        return 0
-    a = (ci >> BLOCK_BITS) - bmeta[1]
-    b = (cj >> BLOCK_BITS) - bmeta[2]
-    d = (ck >> BLOCK_BITS) - bmeta[3]
-    if a < 0 or a >= bmeta[4] or b < 0 or b >= bmeta[5] or d < 0 or d >= bmeta[6]:
-        return 0
-    c = (a * bmeta[5] + b) * bmeta[6] + d
-    v = bgrid[c]
-    if v == 1:
-        bgrid[c] = 2
-    return 1 if v != 0 else 0
-
-
-@njit(cache=True, nogil=True)
-def quiet_passed(bgrid, bmeta):
-    """Packed keys (``grid.pack_block``) of the quiet blocks this frame's rays passed without
-    listing their voxels."""
-    if bmeta[0] == 0:
-        return np.empty(0, dtype=np.int64)
-    bnx, bny, bnz = bmeta[4], bmeta[5], bmeta[6]
-    n = 0
-    for c in range(bnx * bny * bnz):
-        if bgrid[c] == 2:
-            n += 1
-    out = np.empty(n, dtype=np.int64)
-    n = 0
-    c = 0
-    for a in range(bnx):
-        for b in range(bny):
-            for d in range(bnz):
-                if bgrid[c] == 2:
-                    out[n] = pack_block(bmeta[1] + a, bmeta[2] + b, bmeta[3] + d)
-                    n += 1
-                c += 1
-    return out
+                         sp_words, state)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
 def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                  state, bgrid, bmeta):  # fmt: skip
+                  state):  # fmt: skip
     """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
     packed keys (``grid.pack_block``): hits into ``hits[:state[2]]`` (at most one per ray), misses into
     ``misses[:state[3]]``. Returns True when done; False when a buffer must grow first:
@@ -356,13 +244,7 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
     drops the repeats (a dense depth frame steps through each voxel about 15 times, every ray
     passing the voxels near the camera); when the box is too big for a dense bitmap (long lidar
     rays, fine resolutions) a sparse one (``_sparse_visit``) takes every voxel. Reads no map
-    state, so it may run in another thread than ``apply_voxels``.
-
-    Quiet blocks (``bgrid``, see ``_quiet_setup``): a ray passing a block that was quiet when the
-    frame was cast lists none of its voxels there (a miss there changes nothing: see
-    ``apply_voxels_kernel``) and the block is recorded as passed (``quiet_passed``), for
-    ``apply_voxels`` to check that it is still quiet when the frame is applied. Hits are listed
-    wherever they are."""
+    state, so it may run in another thread than ``apply_voxels``."""
     si0, sj0, sk0 = seen_meta[1], seen_meta[2], seen_meta[3]
     snx, sny, snz = seen_meta[4], seen_meta[5], seen_meta[6]
     usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
@@ -447,59 +329,10 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             return False
         lin = ((ci - si0) * sny + (cj - sj0)) * snz + (ck - sk0)  # bit of (ci, cj, ck) when in the box
         lsx, lsy, lsz = si * sny * snz, sj * snz, sk
-        # the voxel's coordinate within its block when a step has just entered a new block
-        edge_x = 0 if si > 0 else BLOCK_MASK
-        edge_y = 0 if sj > 0 else BLOCK_MASK
-        edge_z = 0 if sk > 0 else BLOCK_MASK
-        quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
-        ebx, eby, ebz = ei >> BLOCK_BITS, ej >> BLOCK_BITS, ek >> BLOCK_BITS
         while True:
             # the voxel (ci, cj, ck) is on the ray and is not the end voxel: a miss, unless this
-            # frame updated it already or it lies in a quiet block
-            if quiet != 0:
-                bx, by, bz = ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS
-                if bx != ebx or by != eby or bz != ebz:
-                    # through a quiet block that does not hold the end voxel: nothing to list until
-                    # the ray leaves it, so step without listing or stop tests (the same choices
-                    # and sums as the steps below), then test once. The stop tests
-                    # are monotone (dist never falls, steps only grow) and the end voxel is not in
-                    # this block, so testing after the block's last step stops where stepping
-                    # one by one would have, with nothing listed in between.
-                    k = 0
-                    while True:  # the choices of the steps below, until a step leaves the block
-                        k += 1
-                        if tmx < tmy:
-                            if tmx < tmz:
-                                ci += si
-                                tmx += tdx
-                                lin += lsx
-                                if (ci & BLOCK_MASK) == edge_x:
-                                    break
-                                continue
-                        elif tmy < tmz:
-                            cj += sj
-                            tmy += tdy
-                            lin += lsy
-                            if (cj & BLOCK_MASK) == edge_y:
-                                break
-                            continue
-                        ck += sk
-                        tmz += tdz
-                        lin += lsz
-                        if (ck & BLOCK_MASK) == edge_z:
-                            break
-                    if ci == ei and cj == ej and ck == ek:
-                        break
-                    dist = min(tmx, min(tmy, tmz))
-                    if dist > length:
-                        break
-                    steps += k
-                    if steps > max_steps:
-                        break
-                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
-                    continue
-                first = 0
-            elif seen is None:  # the sparse bitmap (numba compiles this loop twice: seen None or not)
+            # frame updated it already
+            if seen is None:  # the sparse bitmap (numba compiles this loop twice: seen None or not)
                 first = _sparse_visit(ci, cj, ck, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, sp_cache)
                 if first < 0:
                     seen_meta[11] = 3
@@ -525,20 +358,14 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
                 ci += si
                 tmx += tdx
                 lin += lsx
-                if (ci & BLOCK_MASK) == edge_x:
-                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
             elif dim == 1:
                 cj += sj
                 tmy += tdy
                 lin += lsy
-                if (cj & BLOCK_MASK) == edge_y:
-                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
             else:
                 ck += sk
                 tmz += tdz
                 lin += lsz
-                if (ck & BLOCK_MASK) == edge_z:
-                    quiet = _quiet_at(ci, cj, ck, bgrid, bmeta)
             if ci == ei and cj == ej and ck == ek:
                 break
             dist = min(tmx, min(tmy, tmz))
@@ -656,64 +483,14 @@ def apply_voxels_kernel(
 
 
 @njit(cache=True, nogil=True)
-def quiet_table_set(qkeys, qon, qmeta, packed, on):
-    """Block ``packed`` quiet (``on`` 1) or not (0) in the quiet table (open addressing, keys
-    only ever added; ``qmeta[0]`` keys). False when a new key would fill it past half (the caller
-    makes a bigger table with ``quiet_table_rehash`` and calls again)."""
-    mask = qkeys.shape[0] - 1
-    s = _slot(packed, mask)
-    while True:
-        k = qkeys[s]
-        if k == packed:
-            qon[s] = on
-            return True
-        if k == -1:
-            break
-        s = (s + 1) & mask
-    if on == 0:
-        return True
-    if 2 * (qmeta[0] + 1) > qkeys.shape[0]:
-        return False
-    qon[s] = on  # the value before the key: a reader finding the key finds its value
-    qkeys[s] = packed
-    qmeta[0] += 1
-    return True
-
-
-@njit(cache=True, nogil=True)
-def quiet_table_rehash(qkeys, qon, slots):
-    """A new table of ``slots`` slots with the quiet entries of (qkeys, qon), and their count."""
-    keys = np.full(slots, -1, dtype=np.int64)
-    on = np.zeros(slots, dtype=np.uint8)
-    mask = slots - 1
-    n = 0
-    for s in range(qkeys.shape[0]):
-        if qkeys[s] == -1 or qon[s] == 0:
-            continue
-        t = _slot(qkeys[s], mask)
-        while keys[t] != -1:
-            t = (t + 1) & mask
-        keys[t] = qkeys[s]
-        on[t] = 1
-        n += 1
-    return keys, on, n
-
-
-@njit(cache=True, nogil=True)
-def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals, qkeys, qon, qmeta, start):
-    """Set ``quiet[b]`` for the O blocks ``blocks[start:n]``: all 512 voxels clamped free
-    (``nfree[b] == 512``) and no D block at the same coordinates; the quiet table follows.
-    Returns the index to resume from when the table must grow first, else -1."""
-    for t in range(start, n):
+def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals):
+    """Set ``quiet[b]`` for the O blocks ``blocks[:n]``: all 512 voxels clamped free
+    (``nfree[b] == 512``) and no D block at the same coordinates."""
+    for t in range(n):
         b = blocks[t]
-        bx, by, bz = block_coords[b, 0], block_coords[b, 1], block_coords[b, 2]
-        q = nfree[b] == BLOCK_VOXELS and find_block(d_keys, d_vals, bx, by, bz) < 0
-        if q == (quiet[b] != 0):
-            continue
-        if not quiet_table_set(qkeys, qon, qmeta, pack_block(bx, by, bz), 1 if q else 0):
-            return t
+        q = nfree[b] == BLOCK_VOXELS and find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1],
+                                                    block_coords[b, 2]) < 0  # fmt: skip
         quiet[b] = 1 if q else 0
-    return -1
 
 
 @njit(cache=True, nogil=True)
@@ -726,18 +503,6 @@ def quiet_count(logodds, n_blocks, lo_min, nfree):
             if logodds[b, off] == lo32:
                 c += 1
         nfree[b] = c
-
-
-@njit(cache=True, nogil=True)
-def quiet_check(passed, table_keys, table_vals, quiet):
-    """True when every block of ``passed`` (packed block keys) is a quiet O block now."""
-    for t in range(passed.shape[0]):
-        p = passed[t]
-        b = find_block(table_keys, table_vals, (p >> 42) - KEY_OFFSET, ((p >> 21) & KEY_MASK) - KEY_OFFSET,
-                       (p & KEY_MASK) - KEY_OFFSET)  # fmt: skip
-        if b < 0 or quiet[b] == 0:
-            return False
-    return True
 
 
 @njit(cache=True, nogil=True, inline="always")

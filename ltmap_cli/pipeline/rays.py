@@ -36,7 +36,6 @@ class CastFrame:
     rays_s: float
     cast_s: float
     filtered_pixels: int  # flying pixels dropped, or -1 when the filter did not run
-    voxels: object = None  # LayeredMap.frame_voxels' answer (the quiet blocks its rays skipped)
 
 
 class FrameCaster:
@@ -62,8 +61,8 @@ class FrameCaster:
         else:  # pragma: no cover - the reader yields only these
             raise TypeError(type(frame).__name__)
         t1 = time.perf_counter()
-        fv = self.lmap.frame_voxels(T[:3, 3], ends, kind, quiet=True)
-        return CastFrame(fv.hits, fv.misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped, fv)
+        hits, misses = self.lmap.frame_voxels(T[:3, 3], ends, kind)
+        return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped)
 
     def depth_raw_rays(self, frame: RawDepthFrame, T, robot):
         k, sc = frame.intrinsics, self.sensor
