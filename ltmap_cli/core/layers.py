@@ -747,6 +747,7 @@ class LayeredMap:
             q = self._quiet = _QuietBlocks(self, lo_min)
         elif q.d is not self.D or q.d_blocks != self.D.n_blocks:
             q.revalidate(self)
+        q.fit(self.O.max_blocks)
         return q
 
     def _grow_tick_buffer(self) -> None:
