@@ -180,3 +180,28 @@ def test_replay_serial_and_threaded_same_map_with_quiet_blocks(tmp_path):
     _same_map(a, b, stamps=True)
     assert a._quiet.quiet.sum() > 0
 
+
+
+def test_quiet_counts_survive_storage_growing_mid_frame():
+    """O's pool, the tick buffer and the list of changed blocks all full at the start: each grows
+    in the middle of frames, and the map and the per-block counts are those of a roomy map."""
+    from ltmap_cli.core.grid import VoxelGrid
+    from ltmap_cli.core.layers import O_CHANNELS
+
+    frames = _frames(40, seed=5)
+    ref, _ = _run(frames, quiet=True, mode="integrate")
+    tight = LayeredMap()
+    tight.O = VoxelGrid(tight.resolution, O_CHANNELS, initial_blocks=1)
+    tight._tb_block, tight._tb_off = tight._tb_block[:2].copy(), tight._tb_off[:2].copy()
+    q = tight._quiet_sync()
+    q.changed = q.changed[:1].copy()
+    for f, (origin, ends, kind) in enumerate(frames):
+        tight.integrate_rays(origin, ends, kind)
+        if f % 6 == 5:
+            tight.end_tick()
+    _same_map(ref, tight, stamps=True)
+    n = tight.O.n_blocks
+    lo_min = np.float32(tight.cfg.sensor.clamp_min_logodds)
+    assert np.array_equal(tight._quiet.nfree[:n], (tight.O.data["logodds"][:n] == lo_min).sum(axis=1))
+    assert np.array_equal(tight._quiet.quiet[:n], ref._quiet.quiet[:n])
+    assert len(tight._quiet.changed) > 1 and tight._quiet.quiet[:n].sum() > 0
