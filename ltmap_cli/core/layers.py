@@ -42,11 +42,14 @@ from .raycast import (
     SEEN_PAD,
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
+    STATUS_NEED_CHANGED,
     apply_voxels_kernel,
     classify_rays,
     dedupe_endpoints,
     depth_image_rays,
     frame_voxels,
+    quiet_count,
+    quiet_update,
     sparse_grown,
 )
 
@@ -518,8 +521,47 @@ def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
             np.zeros(4 * slots, dtype=np.uint64))  # fmt: skip
 
 
+class _QuietBlocks:
+    """The record of quiet O blocks that ``LayeredMap.apply_voxels`` keeps: per O block the count
+    of voxels clamped free (``nfree``) and the quiet flag (``quiet``)."""
+
+    def __init__(self, lmap: LayeredMap, lo_min: float):
+        o = lmap.O
+        self.o, self.lo_min, self.active = o, lo_min, lmap.quiet_blocks
+        self.nfree = np.zeros(o.max_blocks, dtype=np.int32)
+        self.quiet = np.zeros(o.max_blocks, dtype=np.uint8)
+        self.changed = np.empty(1 << 12, dtype=np.int64)
+        self.ch_meta = np.zeros(1, dtype=np.int64)
+        n = o.n_blocks
+        quiet_count(o.data["logodds"], n, lo_min, self.nfree)
+        self.update(lmap, n, np.arange(n, dtype=np.int64))
+
+    def fit(self, max_blocks: int) -> None:
+        if len(self.nfree) < max_blocks:
+            extra = max_blocks - len(self.nfree)
+            self.nfree = np.concatenate([self.nfree, np.zeros(extra, dtype=self.nfree.dtype)])
+            self.quiet = np.concatenate([self.quiet, np.zeros(extra, dtype=self.quiet.dtype)])
+
+    def update(self, lmap: LayeredMap, n: int, blocks: np.ndarray | None = None) -> None:
+        """Quiet flags of ``blocks[:n]`` (default: those whose count the last frame moved to or
+        from 512)."""
+        d, o = lmap.D, lmap.O
+        quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.quiet, o.block_coords,
+                     d.table_keys, d.table_vals)  # fmt: skip
+        self.d, self.d_blocks = d, d.n_blocks
+
+    def revalidate(self, lmap: LayeredMap) -> None:
+        """D gained blocks (the tick rules' obstacles, long-term seeds) or was replaced: quiet
+        blocks that now have a D block are quiet no more."""
+        qb = np.nonzero(self.quiet[: lmap.O.n_blocks])[0].astype(np.int64)
+        self.update(lmap, len(qb), qb)
+
+
 class LayeredMap:
     """S, O, ST and LT on one voxel lattice, with SPEC 2's update rules."""
+
+    quiet_blocks = True  # misses in quiet blocks are skipped (see apply_voxels); False: every miss updates
+    _quiet: _QuietBlocks | None = None
 
     def __init__(self, cfg: MapConfig | None = None, static: StaticGrid | None = None):
         self.cfg = cfg or MapConfig()
@@ -726,11 +768,24 @@ class LayeredMap:
 
     def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0) -> FrameResult:
         """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's
-        stateful half, in the thread that owns the map."""
+        stateful half, in the thread that owns the map.
+
+        Quiet blocks (``quiet_blocks``, default on): an O block all of whose 512 voxels are
+        clamped free (log-odds at ``clamp_min_logodds``) and that has no D block (no ST or LT
+        anywhere in it) is quiet. A miss there changes nothing: the log-odds stay clamped, and the
+        tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a block that
+        is quiet when the frame begins is skipped whole: the voxel is not stamped again (its stamp
+        stays that of the frame that clamped it) nor put in the tick buffer. O's log-odds, D and
+        the events are those of updating every voxel; only those stamps differ (a voxel is known,
+        stamp > 0, exactly when it is either way). A hit un-quiets its block from the next frame
+        on. Decided here, in frame order, so every path (serial, threads) gives the same map."""
+        q = self._quiet_sync()
         sc = self.cfg.sensor
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
+        use_quiet = self.quiet_blocks
         phase, start = 0, 0
+        q.ch_meta[0] = 0
         while True:
             o = self.O
             status, phase, start = apply_voxels_kernel(
@@ -738,15 +793,32 @@ class LayeredMap:
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
-                phase, start, counters,
+                phase, start, counters, q.nfree, q.quiet, use_quiet, q.changed, q.ch_meta,
             )  # fmt: skip
             if status == STATUS_DONE:
                 break
             if status == STATUS_NEED_BLOCKS:
                 o.grow()
+                q.fit(o.max_blocks)
+            elif status == STATUS_NEED_CHANGED:
+                q.changed = np.resize(q.changed, 2 * len(q.changed))
             else:
                 self._grow_tick_buffer()
+        if use_quiet and q.ch_meta[0]:
+            q.update(self, int(q.ch_meta[0]))
         return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
+
+    def _quiet_sync(self) -> _QuietBlocks:
+        """The quiet blocks' state for the map as it is now: made afresh when O was replaced (a
+        loaded state) or the clamp changed, checked against D when D gained blocks."""
+        q = self._quiet
+        lo_min = float(np.float32(self.cfg.sensor.clamp_min_logodds))
+        if q is None or q.o is not self.O or q.lo_min != lo_min or q.active != self.quiet_blocks:
+            q = self._quiet = _QuietBlocks(self, lo_min)
+        elif q.d is not self.D or q.d_blocks != self.D.n_blocks:
+            q.revalidate(self)
+        q.fit(self.O.max_blocks)
+        return q
 
     def _grow_tick_buffer(self) -> None:
         n = len(self._tb_block) * 2

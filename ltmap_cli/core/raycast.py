@@ -27,7 +27,17 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import _PACK_BITS, _PACK_OFFSET, BLOCK_BITS, _slot, get_or_add_block, pack_block, voxel_offset
+from .grid import (
+    _PACK_BITS,
+    _PACK_OFFSET,
+    BLOCK_BITS,
+    BLOCK_VOXELS,
+    _slot,
+    find_block,
+    get_or_add_block,
+    pack_block,
+    voxel_offset,
+)
 
 RAY_SKIP = 0  # dropped (NaN)
 RAY_CLEAR = 1  # clears up to its end, end marks nothing
@@ -36,6 +46,7 @@ RAY_HIT = 2  # clears up to its end, end voxel is a hit
 STATUS_DONE = 0
 STATUS_NEED_BLOCKS = 1
 STATUS_NEED_TICK_BUFFER = 2
+STATUS_NEED_CHANGED = 3
 SEEN_MAX_WORDS = 1 << 23  # 64 MB, 537 M voxels: a frame whose box is bigger takes the sparse bitmap
 
 
@@ -375,6 +386,7 @@ def apply_voxels_kernel(
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
     phase, start, counters,
+    nfree, quiet, use_quiet, changed, ch_meta,
 ):  # fmt: skip
     """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
@@ -382,17 +394,28 @@ def apply_voxels_kernel(
     already: it is left alone (``frame_voxels`` lists each voxel once, so this is a guard), so
     each voxel is updated once per frame and a hit wins over a miss. A hit also sets
     ``hit_mark`` (O's ``hit`` channel: hit in this tick; the tick rules read and clear it).
-    ``counters`` accumulates [hits applied, misses applied]."""
+    ``counters`` accumulates [hits applied, misses applied].
+
+    Quiet blocks (``use_quiet``): ``nfree[b]`` counts the voxels of O block b at ``lo_min``
+    (clamped free), kept here; ``quiet[b]`` (set by ``quiet_update`` between frames: all 512
+    voxels clamped free and no D block there) is read as it was when the frame began. A miss in
+    a quiet block is no update: its log-odds would stay at ``lo_min``, and the tick rules have
+    nothing to do for a clamped-free voxel without ST or LT, so it is neither stamped nor put in
+    the tick buffer. Blocks whose count reached or left 512 are appended to ``changed``
+    (``ch_meta[0]`` of them) for ``quiet_update``."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
     lo_max32 = np.float32(lo_max)
     n_tb = tb_meta[0]
     tb_cap = tb_block.shape[0]
+    n_ch = ch_meta[0]
+    ch_cap = changed.shape[0]
     last_bx = np.int64(-(1 << 40))
     last_by = np.int64(0)
     last_bz = np.int64(0)
     last_b = np.int64(-1)
+    last_q = False
     while phase < 2:
         keys = hits if phase == 0 else misses
         lo = hit_lo32 if phase == 0 else miss_lo32
@@ -408,8 +431,12 @@ def apply_voxels_kernel(
                 last_bx, last_by, last_bz = bx, by, bz
                 if last_b < 0:
                     tb_meta[0] = n_tb
+                    ch_meta[0] = n_ch
                     counters[phase] += n_done
                     return STATUS_NEED_BLOCKS, phase, r
+                last_q = use_quiet and phase == 1 and quiet[last_b] != 0
+            if last_q:
+                continue
             off = voxel_offset(i, j, k)
             st = stamp[last_b, off]
             if st == frame_id:
@@ -417,24 +444,68 @@ def apply_voxels_kernel(
             if st < tick_first:
                 if n_tb >= tb_cap:
                     tb_meta[0] = n_tb
+                    ch_meta[0] = n_ch
                     counters[phase] += n_done
                     return STATUS_NEED_TICK_BUFFER, phase, r
                 tb_block[n_tb] = last_b
                 tb_off[n_tb] = off
                 n_tb += 1
-            v = logodds[last_b, off] + lo
+            if use_quiet and n_ch >= ch_cap:
+                tb_meta[0] = n_tb
+                ch_meta[0] = n_ch
+                counters[phase] += n_done
+                return STATUS_NEED_CHANGED, phase, r
+            old = logodds[last_b, off]
+            v = old + lo
             if phase == 0:
-                logodds[last_b, off] = lo_max32 if v > lo_max32 else v
+                v = lo_max32 if v > lo_max32 else v
                 hit_mark[last_b, off] = 1
             else:
-                logodds[last_b, off] = lo_min32 if v < lo_min32 else v
+                v = lo_min32 if v < lo_min32 else v
+            logodds[last_b, off] = v
             stamp[last_b, off] = frame_id
             n_done += 1
+            if use_quiet and (old == lo_min32) != (v == lo_min32):
+                if v == lo_min32:
+                    nfree[last_b] += 1
+                    if nfree[last_b] == BLOCK_VOXELS:
+                        changed[n_ch] = last_b
+                        n_ch += 1
+                else:
+                    if nfree[last_b] == BLOCK_VOXELS:
+                        changed[n_ch] = last_b
+                        n_ch += 1
+                    nfree[last_b] -= 1
         counters[phase] += n_done
         phase += 1
         start = 0
+        last_b = np.int64(-1)
     tb_meta[0] = n_tb
+    ch_meta[0] = n_ch
     return STATUS_DONE, 2, 0
+
+
+@njit(cache=True, nogil=True)
+def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals):
+    """Set ``quiet[b]`` for the O blocks ``blocks[:n]``: all 512 voxels clamped free
+    (``nfree[b] == 512``) and no D block at the same coordinates."""
+    for t in range(n):
+        b = blocks[t]
+        q = nfree[b] == BLOCK_VOXELS and find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1],
+                                                    block_coords[b, 2]) < 0  # fmt: skip
+        quiet[b] = 1 if q else 0
+
+
+@njit(cache=True, nogil=True)
+def quiet_count(logodds, n_blocks, lo_min, nfree):
+    """``nfree[b]``: voxels of block b at ``lo_min``, for the first ``n_blocks`` blocks."""
+    lo32 = np.float32(lo_min)
+    for b in range(n_blocks):
+        c = 0
+        for off in range(BLOCK_VOXELS):
+            if logodds[b, off] == lo32:
+                c += 1
+        nfree[b] = c
 
 
 @njit(cache=True, nogil=True, inline="always")

@@ -1,0 +1,380 @@
+"""Benchmark of replay speed against ray length (SPEC 8, issue 17): depth at 10x real time in any
+room, not only where the rays are short.
+
+Scenes (30 s logs, 640x480 depth at 30 Hz + a 720-beam laser at 15 Hz, replayed at 0.05 m with
+default settings), each simulated once with ``ltmap simulate`` and cached under
+``bench/.cache/long_rays_*`` (git-ignored):
+
+- ``house``: the first 30 s of bench_replay's house loop (short rays: the camera pitched 25 deg
+  down sees the floor and furniture within a few metres);
+- ``room``: a single 8 x 5 m room seen along its long axis: the robot stands 0.6 m from one short
+  wall and yaws +-60 deg, the camera level (pitch 0) under a 2.6 m ceiling, so most rays are
+  3 to 7.5 m long;
+- ``hall``: a 20 x 3 m hall seen along its length from one end (+-20 deg): every ray that does
+  not hit the floor, the ceiling or a side wall is cut at the 8 m depth range (a clear ray).
+
+Per scene and configuration a fresh process replays the log (``ltmap_cli.pipeline.replay.Replay``,
+no plots) and prints: log seconds per wall second (``x real``), the process's CPU seconds for the
+replay (``resource.getrusage``: less affected by other work on the machine than wall time), the
+replay's stage clock, peak memory; and per scene the cost model's inputs, measured on every 10th
+depth frame: mean length of the cast rays (one per end voxel after the dedupe) and of the pixels,
+DDA steps per frame (voxels each ray passes) and distinct voxels each frame updates.
+
+``--before REF`` also runs the package as it was at git ref REF (extracted with ``git archive``
+under ``bench/.cache``), interleaved with the current code, ``--repeats`` times each, and checks
+that the final maps are the same (O log-odds and stamps, D, bit for bit).
+
+Run: python bench/bench_long_rays.py [--scenes room,hall,house] [--before REF] [--repeats N]
+     [--configs exact,serial]
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import hashlib
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_replay  # noqa: E402  (the house scenario, code_at, machine, the map comparison)
+
+ROOT = Path(__file__).resolve().parent.parent
+CACHE = ROOT / "bench" / ".cache"
+DURATION = 30.0
+
+SENSORS = [
+    "sensors:",
+    "  laser: {beams: 720, fov: 360, range_max: 10, rate: 15, noise: 0.01, mount: {xyz: [0.15, 0, 0.25]}}",
+    "  depth: {mount: {xyz: [0.1, 0, 1.1]}, pitch: 0, width: 640, height: 480, rate: 30, noise: 0.002,",
+    "          quantization: 0.0025, range_max: 10}",
+]
+
+
+def room_yaml() -> str:
+    return "\n".join([
+        "# bench/bench_long_rays.py: an 8 x 5 m room seen along its long axis. Written by the bench.",
+        "name: bench-long-room",
+        "walls:",
+        "  - points: [[0, 0], [8, 0], [8, 5], [0, 5], [0, 0]]",
+        "    thickness: 0.1",
+        "wall_height: 2.6",
+        "ceiling: 2.6",
+        f"duration: {DURATION:g}",
+        "seed: 17",
+        "robot:",
+        "  radius: 0.25",
+        "  odometry_drift: [0.002, 0.001, 0.05]",
+        "  path:",
+        "    still: {x: 0.6, y: 2.5, yaw: 0, sweep: 120, period: 10}",
+        *SENSORS,
+        "objects:",
+        "  - {id: table, kind: table, pose: {x: 5.0, y: 3.6}, size: [1.2, 0.8, 0.75]}",
+        "  - {id: box, kind: box, pose: {x: 3.5, y: 1.2}, size: [0.4, 0.4, 0.6]}",
+        "",
+    ])
+
+
+def hall_yaml() -> str:
+    return "\n".join([
+        "# bench/bench_long_rays.py: a 20 x 3 m hall seen along its length. Written by the bench.",
+        "name: bench-long-hall",
+        "walls:",
+        "  - points: [[0, 0], [20, 0], [20, 3], [0, 3], [0, 0]]",
+        "    thickness: 0.1",
+        "wall_height: 2.8",
+        "ceiling: 2.8",
+        f"duration: {DURATION:g}",
+        "seed: 18",
+        "robot:",
+        "  radius: 0.25",
+        "  odometry_drift: [0.002, 0.001, 0.05]",
+        "  path:",
+        "    still: {x: 0.6, y: 1.5, yaw: 0, sweep: 40, period: 10}",
+        *SENSORS,
+        "objects:",
+        "  - {id: bin, kind: cylinder, pose: {x: 6.0, y: 0.5}, radius: 0.2, height: 0.6}",
+        "",
+    ])
+
+
+def house_yaml() -> str:
+    """bench_replay's house loop, cut to 30 s (without the bin and the cook, who come later)."""
+    lines = bench_replay.scenario_yaml(DURATION).splitlines()
+    out, skip = [], 0
+    for line in lines:
+        if "id: bin" in line:
+            continue
+        if "id: cook" in line:
+            skip = 5
+        if skip:
+            skip -= 1
+            continue
+        out.append(line)
+    return "\n".join(out) + "\n"
+
+
+SCENES = {
+    "house": house_yaml,
+    "room": room_yaml,
+    "hall": hall_yaml,
+}
+
+
+def ensure_log(scene: str) -> Path:
+    """The scene's log.mcap, simulated once and cached (keyed by the scenario's text)."""
+    text = SCENES[scene]()
+    tag = hashlib.sha1(text.encode()).hexdigest()[:10]
+    folder = CACHE / f"long_rays_{scene}_{tag}"
+    log = folder / "log.mcap"
+    if log.is_file():
+        return log
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "scenario.yaml").write_text(text)
+    t0 = time.perf_counter()
+    print(f"simulating {scene} ({DURATION:g} s of log) into {folder} (once) ...", flush=True)
+    subprocess.run(bench_replay.ltmap_cmd("simulate", str(folder / "scenario.yaml"), "-o", str(log)), check=True,
+                   stdout=subprocess.DEVNULL)  # fmt: skip
+    print(f"  done in {time.perf_counter() - t0:.0f} s", flush=True)
+    return log
+
+
+if __name__ == "__main__" and "--generate-only" in sys.argv:
+    for s in sys.argv[sys.argv.index("--generate-only") + 1].split(","):
+        ensure_log(s)
+    sys.exit(0)
+
+
+CONFIGS = {
+    # name: (fast, threads, quiet_blocks)
+    "exact": (True, True, True),  # the default
+    "noquiet": (True, True, False),  # the default without the quiet blocks (the code before that lever)
+    "serial": (False, False, True),  # the reference path: generic decoding, one thread
+    "before": (True, True, None),  # the code of --before REF, in its default configuration
+}
+
+
+def child(name: str, log: Path, out: Path) -> None:
+    """One configuration in this (fresh) process; prints one JSON line."""
+    import resource
+
+    import numpy as np
+
+    t_proc = time.perf_counter()
+    import ltmap_cli
+    from ltmap_cli.config import Config
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.core.projection import project
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    fast, threads, quiet = CONFIGS[name]
+    if quiet is not None:
+        LayeredMap.quiet_blocks = quiet
+    warm = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"  # numba kernels loaded / compiled
+    cfg = Config()
+    cfg.replay.plots = False
+    run = Replay(cfg, ReplayRequest([warm], out / "warmup"))
+    run.fast, run.threads = fast, threads
+    run.run()
+    cfg = Config()
+    cfg.replay.plots = False
+    run = Replay(cfg, ReplayRequest([log], out / "replay"))
+    run.fast, run.threads = fast, threads
+    ru0 = resource.getrusage(resource.RUSAGE_SELF)
+    t0 = time.perf_counter()
+    rep = run.run()
+    wall = time.perf_counter() - t0
+    ru1 = resource.getrusage(resource.RUSAGE_SELF)
+    lmap = run.lmap
+    p = project(lmap)
+    np.savez(out / "bench_state.npz", P=p.data, P_origin=np.asarray(p.origin, dtype=np.float64),
+             **lmap.state_arrays())  # fmt: skip
+    print(json.dumps({
+        "name": name, "wall_s": wall, "cpu_s": (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime),
+        "process_s": time.perf_counter() - t_proc, "code": ltmap_cli.__file__, "log_s": rep["log_duration_s"],
+        "speed": rep["log_duration_s"] / wall, "stage_s": rep.get("stage_s", {}),
+        "peak_mb": ru1.ru_maxrss / 1024.0,
+        "quiet_blocks": int(lmap._quiet.quiet.sum()) if getattr(lmap, "_quiet", None) is not None else 0,
+    }), flush=True)
+
+
+def stats_child(log: Path, out: Path) -> None:
+    """The cost model's inputs on every 10th depth frame (one thread, no quiet blocks, so the DDA
+    lists every voxel): mean length of the cast rays and of the pixels' rays, DDA steps per
+    frame (voxels each ray passes: |di| + |dj| + |dk| + 1), voxels listed per frame."""
+    import numpy as np
+
+    from ltmap_cli.config import Config
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.pipeline import rays as rays_mod
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    LayeredMap.quiet_blocks = False
+    rows = []
+    count = [0]
+    orig = rays_mod.FrameCaster.depth_raw_rays
+
+    def depth_raw_rays(self, frame, T, robot):
+        ends, kind = orig(self, frame, T, robot)
+        count[0] += 1
+        if count[0] % 10 == 0:
+            o = T[:3, 3]
+            keep = kind > 0
+            e = ends[keep]
+            length = np.linalg.norm(e - o, axis=1)
+            r = self.lmap.resolution
+            steps = (np.abs(np.floor(e / r) - np.floor(o / r)).sum(axis=1) + 1).sum()
+            raw = frame.raw.astype(np.float64) * 0.001 if frame.raw.dtype == np.uint16 else frame.raw
+            valid = np.isfinite(raw) & (raw > 0)
+            k = frame.intrinsics
+            h, w = raw.shape
+            xr = (np.arange(w) - k.cx) / k.fx
+            yr = (np.arange(h) - k.cy) / k.fy
+            pix = raw * np.sqrt(1 + xr[None, :] ** 2 + yr[:, None] ** 2)
+            pix = np.minimum(pix[valid], self.sensor.depth_max_range)
+            hits, misses = self.lmap.frame_voxels(o, ends, kind)
+            rows.append((int(keep.sum()), float(length.mean()), float(pix.mean()), float(steps),
+                         len(hits) + len(misses)))  # fmt: skip
+        return ends, kind
+
+    rays_mod.FrameCaster.depth_raw_rays = depth_raw_rays
+    cfg = Config()
+    cfg.replay.plots = False
+    run = Replay(cfg, ReplayRequest([log], out / "stats"))
+    run.threads = False
+    run.run()
+    a = np.array(rows, dtype=np.float64)
+    print(json.dumps({"frames": len(a), "rays": a[:, 0].mean(), "ray_len": a[:, 1].mean(), "pixel_len": a[:, 2].mean(),
+                      "steps": a[:, 3].mean(), "voxels": a[:, 4].mean()}), flush=True)  # fmt: skip
+
+
+def run_child(args: list[str], env=None) -> dict:
+    proc = subprocess.run([sys.executable, __file__, *args], check=True, capture_output=True, text=True, env=env)
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def run_config(name: str, log: Path, out: Path, before: str) -> dict:
+    out.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    if name == "before":
+        env["PYTHONPATH"] = str(bench_replay.code_at(before)) + os.pathsep + env.get("PYTHONPATH", "")
+    res = run_child(["--child", name, str(log), str(out)], env)
+    res["out"] = str(out)
+    return res
+
+
+def cli_run(log: Path, out: Path) -> dict:
+    """The whole ``ltmap replay --no-plots`` process: wall and CPU time, start-up included."""
+    import resource
+
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    t0 = time.perf_counter()
+    subprocess.run(bench_replay.ltmap_cmd("replay", str(log), "-o", str(out), "--no-plots"), check=True,
+                   capture_output=True)  # fmt: skip
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"wall_s": wall, "cpu_s": (r1.ru_utime + r1.ru_stime) - (r0.ru_utime + r0.ru_stime),
+            "peak_mb": r1.ru_maxrss / 1024.0}  # fmt: skip
+
+
+def same_maps(a_out: str, b_out: str) -> dict:
+    """Which of O's and D's arrays are bit for bit the same (and O log-odds / stamp > 0 alone)."""
+    import numpy as np
+
+    a = np.load(Path(a_out) / "bench_state.npz")
+    b = np.load(Path(b_out) / "bench_state.npz")
+    diff = [k for k in a.files if k.startswith(("O_", "D_"))
+            and (a[k].shape != b[k].shape or a[k].tobytes() != b[k].tobytes())]  # fmt: skip
+    known = a["O_stamp"].shape == b["O_stamp"].shape and np.array_equal(a["O_stamp"] > 0, b["O_stamp"] > 0)
+    p_same = a["P"].shape == b["P"].shape and np.array_equal(a["P"], b["P"])
+    return {"differ": diff, "known_same": bool(known), "P_same": bool(p_same)}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--scenes", default="room,hall,house", help="comma separated: " + ", ".join(SCENES))
+    ap.add_argument("--configs", default="noquiet,exact", help="comma separated, run interleaved: "
+                    + ", ".join(CONFIGS))
+    ap.add_argument("--before", default="", help="git ref: adds the configuration 'before' (that code)")
+    ap.add_argument("--repeats", type=int, default=2, help="rounds of the interleaved configurations")
+    ap.add_argument("--cli", action="store_true", help="also time the whole `ltmap replay --no-plots` process")
+    ap.add_argument("--no-stats", action="store_true", help="skip the ray-length statistics")
+    args = ap.parse_args()
+    scenes = [s for s in args.scenes.split(",") if s]
+    names = [n for n in args.configs.split(",") if n]
+    if args.before and "before" not in names:
+        names.insert(0, "before")
+    for n in names:
+        if n not in CONFIGS:
+            ap.error(f"unknown configuration {n}; use {', '.join(CONFIGS)}")
+    logs = {s: ensure_log(s) for s in scenes}
+    print(f"bench_long_rays: {datetime.date.today()}, {bench_replay.machine()}")
+    print(f"load average before: {os.getloadavg()[0]:.2f}", flush=True)
+    work = Path(tempfile.mkdtemp(prefix="bench_long_rays_"))
+    stats, results, cli = {}, {}, {}
+    for s in scenes:
+        if not args.no_stats:
+            stats[s] = run_child(["--stats", str(logs[s]), str(work / s / "stats")])
+            st = stats[s]
+            print(f"  {s}: {st['rays']:.0f} cast rays per depth frame, mean length {st['ray_len']:.2f} m "
+                  f"(pixels {st['pixel_len']:.2f} m), {st['steps'] / 1e6:.2f} M DDA steps and "
+                  f"{st['voxels'] / 1e3:.0f} k voxels listed per frame", flush=True)
+        for rnd in range(args.repeats):
+            for n in names:
+                r = run_config(n, logs[s], work / s / f"{n}_{rnd}", args.before)
+                results.setdefault((s, n), []).append(r)
+                print(f"  {s} {n} round {rnd}: {r['speed']:.2f}x real time, CPU {r['cpu_s']:.1f} s, "
+                      f"wall {r['wall_s']:.1f} s, quiet blocks {r.get('quiet_blocks', 0)}, peak {r['peak_mb']:.0f} MB", flush=True)
+            if args.cli:
+                c = cli_run(logs[s], work / s / f"cli_{rnd}")
+                cli.setdefault(s, []).append(c)
+                print(f"  {s} ltmap replay --no-plots round {rnd}: {30.0 / c['wall_s']:.2f}x real time "
+                      f"(process wall {c['wall_s']:.1f} s, CPU {c['cpu_s']:.1f} s, peak {c['peak_mb']:.0f} MB)",
+                      flush=True)  # fmt: skip
+    print(f"load average after: {os.getloadavg()[0]:.2f}")
+    print()
+    stages = ["read_thread", "rays", "cast", "integrate", "ticks", "output"]
+    print("| scene | mean ray m | M steps/frame | config | x real time (best) | wall s (best) | CPU s (best) | "
+          + " | ".join(stages) + " | quiet blocks | peak MB |")
+    print("|---" * (10 + len(stages)) + "|")
+    for (s, n), rs in results.items():
+        best = min(rs, key=lambda r: r["cpu_s"])
+        fast = max(rs, key=lambda r: r["speed"])
+        st = stats.get(s, {})
+        print(f"| {s} | {st.get('ray_len', float('nan')):.2f} | {st.get('steps', float('nan')) / 1e6:.2f} | {n} | "
+              f"{fast['speed']:.2f} | {min(r['wall_s'] for r in rs):.2f} | {best['cpu_s']:.1f} | "
+              + " | ".join(f"{best['stage_s'].get(x, 0.0):.2f}" for x in stages)
+              + f" | {best.get('quiet_blocks', 0)} | {max(r['peak_mb'] for r in rs):.0f} |")
+    print()
+    for s in scenes:
+        ref = results.get((s, "serial"), results.get((s, names[0])))[0]
+        for n in names:
+            for r in results[(s, n)]:
+                if r is ref:
+                    continue
+                c = same_maps(ref["out"], r["out"])
+                print(f"{s}: {n} vs {ref['name']}: arrays that differ {c['differ'] or 'none'}; "
+                      f"known voxels same {c['known_same']}; P same {c['P_same']}")
+        for n in names:
+            if n != names[0]:
+                a = sum(r["cpu_s"] for r in results[(s, names[0])])
+                b = sum(r["cpu_s"] for r in results[(s, n)])
+                wa = sum(r["wall_s"] for r in results[(s, names[0])])
+                wb = sum(r["wall_s"] for r in results[(s, n)])
+                print(f"{s}: {n} vs {names[0]}: CPU time {a / b:.2f}x less, wall time {wa / wb:.2f}x less "
+                      f"(sums over {args.repeats} rounds)")
+    print(f"outputs kept in {work}")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) > 1 and sys.argv[1] == "--child":
+        child(sys.argv[2], Path(sys.argv[3]), Path(sys.argv[4]))
+    elif len(sys.argv) > 1 and sys.argv[1] == "--stats":
+        stats_child(Path(sys.argv[2]), Path(sys.argv[3]))
+    else:
+        main()

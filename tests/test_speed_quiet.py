@@ -1,0 +1,207 @@
+"""Quiet blocks (issue 17): an O block whose 512 voxels are all clamped free and which has no D
+block takes no miss updates (they would change nothing).
+
+- the map is the one of updating every voxel (``quiet_blocks = False``): O log-odds, D, events,
+  block order bit for bit; only the stamps of voxels in quiet blocks differ (they keep the frame
+  that clamped them), and a voxel is known (stamp > 0) exactly when it is there;
+- it is decided in ``apply_voxels``, in frame order: frames cast several frames ahead of being
+  applied (as the replay's worker threads cast them) give the same map bit for bit, stamps too;
+- the per-block counts stay those of the map, also after a loaded state and new LT seeds;
+- the replay of a sample log gives the same map on the serial path and the threaded one.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ltmap_cli.config import Config
+from ltmap_cli.core.layers import LayeredMap
+from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+ROOT = Path(__file__).resolve().parent.parent
+HOUSE = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
+
+
+def _frames(n: int, seed: int):
+    """Depth-camera-like fans of rays in a 4 x 3 x 2.5 m room from near one point, with stray
+    hits in the free space now and then (noise, a person walking through) that un-quiet blocks."""
+    rng = np.random.default_rng(seed)
+    lo, hi = np.array([0.0, 0.0, 0.0]), np.array([4.0, 3.0, 2.5])
+    frames = []
+    for f in range(n):
+        origin = np.array([0.52, 1.47, 1.03]) + rng.normal(0, 0.01, 3)
+        yaw = 0.3 * np.sin(f / 7.0)
+        u = np.linspace(-0.5, 0.5, 48)[None, :] + rng.normal(0, 0.002, (36, 48))
+        v = np.linspace(-0.4, 0.4, 36)[:, None] + rng.normal(0, 0.002, (36, 48))
+        d = np.stack([np.cos(yaw + u) * np.cos(v), np.sin(yaw + u) * np.cos(v), np.sin(v)], -1).reshape(-1, 3)
+        # distance to the room's walls along each ray
+        t = np.full(len(d), np.inf)
+        for ax in range(3):
+            with np.errstate(divide="ignore"):
+                for wall in (lo[ax], hi[ax]):
+                    tw = (wall - origin[ax]) / d[:, ax]
+                    t = np.where((tw > 0) & (tw < t), tw, t)
+        t = t * (1 + rng.normal(0, 0.002, len(t)))
+        if f % 9 == 5:  # stray returns in the free space
+            stray = rng.random(len(t)) < 0.01
+            t[stray] *= rng.uniform(0.2, 0.9, stray.sum())
+        ends = origin + d * t[:, None]
+        kind = np.where(rng.random(len(t)) < 0.02, 1, 2).astype(np.int8)  # a few clear-only rays
+        frames.append((origin, ends, kind))
+    return frames
+
+
+def _run(frames, quiet: bool, mode: str, ahead: int = 0):
+    """mode: 'integrate' (cast and apply each frame), 'ahead' (cast ``ahead`` frames before applying
+    them, as the worker threads do)."""
+    m = LayeredMap()
+    m.quiet_blocks = quiet
+    ticks = []
+    pending = []
+    for f, (origin, ends, kind) in enumerate(frames):
+        if mode == "integrate":
+            m.integrate_rays(origin, ends, kind)
+        else:
+            pending.append(m.frame_voxels(origin, ends, kind))
+            if len(pending) > ahead:
+                m.apply_voxels(*pending.pop(0))
+        if f % 6 == 5:
+            while pending:  # a tick: applied in order first (the replay does the same)
+                m.apply_voxels(*pending.pop(0))
+            ticks.append(m.end_tick())
+    return m, ticks
+
+
+def _same_map(a: LayeredMap, b: LayeredMap, stamps: bool) -> None:
+    n = a.O.n_blocks
+    assert b.O.n_blocks == n
+    assert np.array_equal(a.O.block_coords[:n], b.O.block_coords[:n])
+    assert np.array_equal(a.O.data["logodds"][:n], b.O.data["logodds"][:n])
+    assert np.array_equal(a.O.data["stamp"][:n] > 0, b.O.data["stamp"][:n] > 0)
+    if stamps:
+        assert np.array_equal(a.O.data["stamp"][:n], b.O.data["stamp"][:n])
+    nd = a.D.n_blocks
+    assert b.D.n_blocks == nd
+    assert np.array_equal(a.D.block_coords[:nd], b.D.block_coords[:nd])
+    for ch in a.D.data:
+        assert np.array_equal(a.D.data[ch][:nd], b.D.data[ch][:nd]), ch
+    assert np.array_equal(a.events.transitions, b.events.transitions)
+    for x, y in zip(a.events.history, b.events.history):
+        assert np.array_equal(x, y)
+
+
+def test_quiet_blocks_leave_the_map_of_every_update():
+    frames = _frames(90, seed=1)
+    full, _ = _run(frames, quiet=False, mode="integrate")
+    quiet, ticks = _run(frames, quiet=True, mode="integrate")
+    _same_map(full, quiet, stamps=False)
+    q = quiet._quiet
+    n = quiet.O.n_blocks
+    assert q.quiet[:n].sum() > 20  # the lever is exercised: blocks became quiet
+    # stamps differ only in voxels clamped free, where the quiet map's is older
+    lo = quiet.O.data["logodds"][:n]
+    sa, sb = full.O.data["stamp"][:n], quiet.O.data["stamp"][:n]
+    differ = sa != sb
+    assert differ.any()
+    assert (lo[differ] == np.float32(quiet.cfg.sensor.clamp_min_logodds)).all()
+    assert (sb[differ] < sa[differ]).all()
+    # the counts are the quiet state of the map: recomputed from scratch, the same
+    lo_min = np.float32(quiet.cfg.sensor.clamp_min_logodds)
+    assert np.array_equal(q.nfree[:n], (lo == lo_min).sum(axis=1))
+    no_d = np.array([_d_block(quiet, b) < 0 for b in range(n)])
+    assert np.array_equal(q.quiet[:n].astype(bool), (q.nfree[:n] == 512) & no_d)
+    assert all(t.observed > 0 for t in ticks)
+
+
+def _d_block(m: LayeredMap, b: int) -> int:
+    from ltmap_cli.core.grid import find_block
+
+    c = m.O.block_coords[b]
+    return int(find_block(m.D.table_keys, m.D.table_vals, int(c[0]), int(c[1]), int(c[2])))
+
+
+def test_frames_cast_ahead_give_the_same_map_bit_for_bit():
+    frames = _frames(90, seed=2)
+    ref, _ = _run(frames, quiet=True, mode="integrate")
+    assert ref._quiet.quiet[: ref.O.n_blocks].sum() > 20
+    for ahead in (3, 8):
+        late, _ = _run(frames, quiet=True, mode="ahead", ahead=ahead)
+        _same_map(ref, late, stamps=True)
+
+
+def test_quiet_blocks_follow_a_loaded_state_and_new_long_term_seeds():
+    frames = _frames(60, seed=3)
+    ref, _ = _run(frames, quiet=False, mode="integrate")
+    m, _ = _run(frames[:30], quiet=True, mode="integrate")
+    # a copy through the exact state: the quiet record is rebuilt from its O and D
+    m2 = LayeredMap()
+    m2.load_state_arrays({k: np.array(v) for k, v in m.state_arrays().items()})
+    # LT seeded inside what is quiet free space now: those blocks stop being quiet
+    q = m._quiet
+    qb = np.nonzero(q.quiet[: m.O.n_blocks])[0][:3]
+    keys = m.O.block_coords[qb].astype(np.int64) * 8 + 3
+    for x in (m, m2, ref):
+        x.seed_long_term(keys, 0.9)
+    for x in (m, m2):
+        for f, (origin, ends, kind) in enumerate(frames[30:], start=30):
+            x.integrate_rays(origin, ends, kind)
+            if f % 6 == 5:
+                x.end_tick()
+    ref2 = LayeredMap()
+    ref2.quiet_blocks = False
+    for f, (origin, ends, kind) in enumerate(frames):
+        ref2.integrate_rays(origin, ends, kind)
+        if f % 6 == 5:
+            ref2.end_tick()
+        if f == 29:
+            ref2.seed_long_term(keys, 0.9)
+    for x in (m, m2):
+        n = x.O.n_blocks
+        assert np.array_equal(x.O.data["logodds"][:n], ref2.O.data["logodds"][:n])
+        nd = x.D.n_blocks
+        for ch in x.D.data:
+            assert np.array_equal(x.D.data[ch][:nd], ref2.D.data[ch][:nd]), ch
+        assert not x._quiet.quiet[qb].any()
+    assert ref.frame_id == 60
+
+
+def test_replay_serial_and_threaded_same_map_with_quiet_blocks(tmp_path):
+    outs = {}
+    for name, (fast, threads) in {"serial": (False, False), "threads": (True, True)}.items():
+        cfg = Config()
+        cfg.replay.plots = False
+        run = Replay(cfg, ReplayRequest([HOUSE], tmp_path / name))
+        run.fast, run.threads = fast, threads
+        run.run()
+        outs[name] = run.lmap
+    a, b = outs["serial"], outs["threads"]
+    _same_map(a, b, stamps=True)
+    assert a._quiet.quiet.sum() > 0
+
+
+
+def test_quiet_counts_survive_storage_growing_mid_frame():
+    """O's pool, the tick buffer and the list of changed blocks all full at the start: each grows
+    in the middle of frames, and the map and the per-block counts are those of a roomy map."""
+    from ltmap_cli.core.grid import VoxelGrid
+    from ltmap_cli.core.layers import O_CHANNELS
+
+    frames = _frames(40, seed=5)
+    ref, _ = _run(frames, quiet=True, mode="integrate")
+    tight = LayeredMap()
+    tight.O = VoxelGrid(tight.resolution, O_CHANNELS, initial_blocks=1)
+    tight._tb_block, tight._tb_off = tight._tb_block[:2].copy(), tight._tb_off[:2].copy()
+    q = tight._quiet_sync()
+    q.changed = q.changed[:1].copy()
+    for f, (origin, ends, kind) in enumerate(frames):
+        tight.integrate_rays(origin, ends, kind)
+        if f % 6 == 5:
+            tight.end_tick()
+    _same_map(ref, tight, stamps=True)
+    n = tight.O.n_blocks
+    lo_min = np.float32(tight.cfg.sensor.clamp_min_logodds)
+    assert np.array_equal(tight._quiet.nfree[:n], (tight.O.data["logodds"][:n] == lo_min).sum(axis=1))
+    assert np.array_equal(tight._quiet.quiet[:n], ref._quiet.quiet[:n])
+    assert len(tight._quiet.changed) > 1 and tight._quiet.quiet[:n].sum() > 0
