@@ -227,10 +227,12 @@ def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(t
     assert not [p for p in out.rglob("*") if ".staging-" in p.name or ".old-" in p.name]
 
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob(TASK_FILE)}
+    (out / "a" / ".day2.staging-0123456789ab").mkdir()  # left by a batch killed in the middle
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
     assert r.exit_code == 0, r.output
     assert "3 of 3 days done (3 up to date, 0 replayed)" in r.output
     assert {p: p.stat().st_mtime_ns for p in out.rglob(TASK_FILE)} == stamps  # nothing replayed again
+    assert not (out / "a" / ".day2.staging-0123456789ab").exists()
     assert [x["status"] for x in summary(out)][:2] == ["up to date", "up to date"]
 
     # another parameter: every day again (and the dry run says so first)
@@ -337,3 +339,17 @@ def test_a_worker_killed_in_the_middle_the_batch_completes_with_the_same_results
         hand = hand_chain(tmp_path / f"hand_{site}", chain)
         for i, h in enumerate(hand, start=1):
             assert_same_maps(out / site / f"day{i}", h)
+
+
+@pytest.mark.slow
+def test_a_batch_on_a_running_cluster_by_address_and_an_address_nobody_answers(tmp_path):
+    from dask.distributed import LocalCluster
+
+    manifest = write_manifest(tmp_path / "fleet.yaml", {"a": {"days": [[LOG4]]}})
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        r = ltmap("batch", manifest, "-o", tmp_path / "out", "--no-plots", "--address", cluster.scheduler_address)
+    assert r.exit_code == 0, r.output
+    assert f"engine: Dask cluster at {cluster.scheduler_address} (1 worker)" in r.output
+    assert_same_maps(tmp_path / "out" / "a" / "day1", hand_chain(tmp_path / "hand", [[LOG4]])[0])
+    line = one_error_line(ltmap("batch", manifest, "-o", tmp_path / "out2", "--address", "tcp://127.0.0.1:9"))
+    assert "--address tcp://127.0.0.1:9: cannot reach a Dask scheduler" in line and "dask scheduler" in line
