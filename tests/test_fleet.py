@@ -248,16 +248,23 @@ def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(t
 def test_a_failing_log_is_retried_once_then_reported_and_the_other_site_completes(tmp_path):
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)
+    plan = tmp_path / "broken.svg"
+    plan.write_text("<svg xmlns='http://www.w3.org/2000/svg'><line x1='0' y1='0' x2='1' y2='1'/></svg>")  # no scale
     manifest = write_manifest(tmp_path / "fleet.yaml", {"bad": {"days": [[LOG1], [bad], [LOG4]]},
-                                                        "good": {"days": [[LOG5]]}})  # fmt: skip
+                                                        "good": {"days": [[LOG5]]},
+                                                        "noplan": {"static": plan, "days": [[LOG1], [LOG4]]}})  # fmt: skip
     out = tmp_path / "out"
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
     assert r.exit_code == 1, r.output
     lines = r.output.splitlines()
     assert sum("bad day 2 failed" in ln and "retrying once" in ln for ln in lines) == 1, r.output
     failed = [ln for ln in lines if ln.startswith("ltmap: failed: ")]
-    assert len(failed) == 1 and "bad day 2" in failed[0] and str(bad) in failed[0] and "2 attempts" in failed[0]
-    assert [ln for ln in lines if ln.startswith("ltmap: not run: ")] == ["ltmap: not run: bad day 3: day 2 failed"]
+    assert len(failed) == 2 and "bad day 2" in failed[1] and str(bad) in failed[1] and "2 attempts" in failed[1]
+    # the plan fails in build-static's own words (no scale), and the site's days cannot run
+    assert "noplan static plan" in failed[0] and "2 attempts" in failed[0] and "scale" in failed[0]
+    assert [ln for ln in lines if ln.startswith("ltmap: not run: ")] == [
+        "ltmap: not run: bad day 3: day 2 failed", "ltmap: not run: noplan day 1: the static plan of noplan failed",
+        "ltmap: not run: noplan day 2: the static plan of noplan failed"]  # fmt: skip
     assert "Traceback" not in r.output
     assert (out / "good" / "day1" / TASK_FILE).is_file() and (out / "bad" / "day1" / TASK_FILE).is_file()
     assert not (out / "bad" / "day2").exists() and not (out / "bad" / "day3").exists()
@@ -266,6 +273,8 @@ def test_a_failing_log_is_retried_once_then_reported_and_the_other_site_complete
     assert rows[("bad", "3")]["status"] == "not run" and rows[("bad", "3")]["error"] == "day 2 failed"
     assert rows[("good", "1")]["status"] == "done" and rows[("bad", "1")]["status"] == "done"
     assert rows[("bad", "all")]["status"] == "2 of 3 not done"
+    assert rows[("noplan", "1")]["status"] == "not run" and "scale" in rows[("noplan", "1")]["error"]
+    assert not (out / "noplan").exists() or not list((out / "noplan").iterdir())
 
 
 def test_a_folder_ltmap_did_not_write_is_not_replaced(tmp_path):
