@@ -74,7 +74,7 @@ def _clock(s: float) -> str:
 
 
 @click.command("batch", help=HELP, short_help="Replay a fleet's logs (sites x days) on a Dask engine.")
-@click.argument("manifest", type=click.Path(path_type=Path))
+@click.argument("manifest", metavar="FLEET.yaml", type=click.Path(path_type=Path))
 @click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("ltmap_batch"), show_default=True,
               help="Output folder.")
 @click.option("--sweep", "sweeps", multiple=True, metavar="KEY=V1,V2,...",

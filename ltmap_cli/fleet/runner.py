@@ -32,7 +32,7 @@ CONNECT_TIMEOUT_S = 10
 WORKER_WAIT_S = 30  # a cluster without workers: how long to wait for the first before giving up
 
 # the states of a task, as the progress line and summary.csv show them
-QUEUED, RUNNING, DONE, UP_TO_DATE, FAILED, NOT_RUN = "queued", "running", "done", "up to date", "failed", "not run"
+QUEUED, DONE, UP_TO_DATE, FAILED, NOT_RUN = "queued", "done", "up to date", "failed", "not run"
 
 
 @dataclass
