@@ -111,6 +111,7 @@ BAD_MANIFESTS = [
     ("sites:\n  lab:\n    days:\n      - [logs/mon.mcap]\n      - logs/tue.mcap\n",
      ["sites.lab.days: day 2: expected a list of logs, got 'logs/tue.mcap'", "- [logs/tue.mcap]"]),
     ("sites:\n  lab:\n    days: [[logs/mon.mcap], []]\n", ["sites.lab.days: day 2: is an empty list"]),
+    ("sites:\n  lab:\n    days:\n      - [logs/mon.mcap]\n      -\n", ["sites.lab.days: day 2: expected a list of logs, got nothing"]),
     ("sites:\n  lab:\n    days: [[logs/mon.mcap], [logs/tue.mcap, logs/wed.mcap]]\n",
      ["sites.lab.days: day 2, log logs/wed.mcap: no such file or folder", "relative to the manifest"]),
     ("sites:\n  lab:\n    days: [[logs/mon.mcap, 3]]\n", ["sites.lab.days: day 1: a log must be a path, got int"]),

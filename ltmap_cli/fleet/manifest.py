@@ -79,7 +79,7 @@ def load_manifest(path: str | Path) -> Manifest:
 
     p = Path(path)
     if not p.is_file():
-        what = "is a folder" if p.is_dir() else "does not exist"
+        what = "is a folder" if p.is_dir() else "is not a regular file" if p.exists() else "does not exist"
         raise ManifestError(f"manifest {p} {what}; give the fleet's YAML file (see docs/fleet.md)")
     size = p.stat().st_size
     if size > MAX_MANIFEST_BYTES:
@@ -145,7 +145,8 @@ def parse_manifest(doc: Any, path: Path) -> Manifest:
         for i, day in enumerate(days_doc, start=1):
             dwhere = f"{where}.days: day {i}"
             if not isinstance(day, list):
-                raise bad(dwhere, f"expected a list of logs, got {_kind(day)}; write it as - [{_show(day)}]")
+                hint = f"; write it as - [{_show(day)}]" if isinstance(day, str) else ""
+                raise bad(dwhere, f"expected a list of logs, got {_kind(day)}{hint}")
             if not day:
                 raise bad(dwhere, "is an empty list; give at least one log, or remove the day")
             logs = []
