@@ -246,13 +246,13 @@ def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(t
     assert "lt_fall_s: 4.0" in (out / "a" / "day2" / "config.yaml").read_text()
 
 
-def test_a_failing_log_is_retried_once_then_reported_and_the_other_site_completes(tmp_path):
+def test_a_failing_log_is_retried_once_then_reported_and_the_other_sites_complete(tmp_path):
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)
     plan = tmp_path / "broken.svg"
     plan.write_text("<svg xmlns='http://www.w3.org/2000/svg'><line x1='0' y1='0' x2='1' y2='1'/></svg>")  # no scale
     manifest = write_manifest(tmp_path / "fleet.yaml", {"bad": {"days": [[LOG1], [bad], [LOG4]]},
-                                                        "good": {"days": [[LOG5]]},
+                                                        "good": {"days": [[LOG1, LOG1.with_suffix(".bag")]]},
                                                         "noplan": {"static": plan, "days": [[LOG1], [LOG4]]}})  # fmt: skip
     out = tmp_path / "out"
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
@@ -267,6 +267,9 @@ def test_a_failing_log_is_retried_once_then_reported_and_the_other_site_complete
         "ltmap: not run: bad day 3: day 2 failed", "ltmap: not run: noplan day 1: the static plan of noplan failed",
         "ltmap: not run: noplan day 2: the static plan of noplan failed"]  # fmt: skip
     assert "Traceback" not in r.output
+    # a replay's warning comes from its worker to the user's terminal, naming the day
+    warned = [ln for ln in lines if ln.startswith("ltmap: warning: good day 1: ")]
+    assert len(warned) == 1 and "given twice" in warned[0], r.output
     assert (out / "good" / "day1" / TASK_FILE).is_file() and (out / "bad" / "day1" / TASK_FILE).is_file()
     assert not (out / "bad" / "day2").exists() and not (out / "bad" / "day3").exists()
     rows = {(x["site"], x["day"]): x for x in summary(out)}
