@@ -188,14 +188,20 @@ def test_fingerprints_change_with_the_config_and_from_a_changed_log_on(tmp_path)
     k1 = keys()
     # day 2 changed; day 3 builds on it; day 1 and the other site did not
     assert [k1[s] == k0[s] for s in (("a", 1), ("a", 2), ("a", 3), ("b", 1))] == [True, False, False, True]
+    # tomorrow's log added to the manifest: the days before keep their fingerprints
+    (tmp_path / "logs" / "a4.mcap").write_bytes(b"a4")
+    write_manifest(manifest, {"a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
+                              "b": {"days": [["logs/b1.mcap"]]}})  # fmt: skip
+    k_added = keys()
+    assert {s: k for s, k in k_added.items() if s != ("a", 4)} == k1 and k_added[("a", 4)] not in k1.values()
     k2 = keys(sets=[("map.layers.lt_fall_s", 4.0)])
     assert not set(k2.values()) & set(k1.values())
     plan = build_plan(load_manifest(manifest), tmp_path / "out", sweeps=["map.layers.lt_fall_s=3,4"])
     assert [str(d.out_dir.relative_to(tmp_path / "out")) for d in plan.chains[0].days][:2] == [
         "a/lt_fall_s=3/day1", "a/lt_fall_s=3/day2"]
     # lt_fall_s=3 is the default: the same parameters as no sweep, so the same fingerprints
-    assert [d.key for d in plan.chains[0].days] == [k1[("a", i)] for i in (1, 2, 3)]
-    assert [d.key for d in plan.chains[1].days] == [k2[("a", i)] for i in (1, 2, 3)]
+    assert [d.key for d in plan.chains[0].days] == [k_added[("a", i)] for i in (1, 2, 3, 4)]
+    assert [d.key for d in plan.chains[1].days] == [k2[("a", i)] for i in (1, 2, 3, 4)]
 
 
 # ------------------------------------------------------------------------------------ batches
