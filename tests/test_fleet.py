@@ -343,6 +343,7 @@ def test_a_worker_killed_in_the_middle_the_batch_completes_with_the_same_results
                 victim = busy[0]
             time.sleep(0.05)
         assert victim is not None, "no task started"
+        killed = [k for k in client.processing().get(victim, ()) if str(k).startswith("ltmap-")]
         os.kill(pids[victim], signal.SIGKILL)
         runner.join(300)
         assert not runner.is_alive()
@@ -353,6 +354,10 @@ def test_a_worker_killed_in_the_middle_the_batch_completes_with_the_same_results
     # the engine rescheduled the killed task (ltmap's own retry of a failed task was not needed)
     assert [s.attempts for s in result.states] == [1] * 4
     assert pids[victim] not in {int(s.result["worker"].rsplit(":", 1)[1]) for s in result.states}
+    # the task the killed worker was running was run again elsewhere, to the end
+    assert len(killed) == 1
+    again = [s for s in result.states if killed[0].startswith("ltmap-" + s.task.label.replace(" ", "-") + "-")]
+    assert len(again) == 1 and again[0].status == DONE
     assert not [p for p in out.rglob("*") if ".staging-" in p.name]
     for site, chain in days.items():
         hand = hand_chain(tmp_path / f"hand_{site}", chain)
