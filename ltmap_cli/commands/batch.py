@@ -31,6 +31,9 @@ failed (listed); 2: bad manifest or options.
 """
 
 
+MAX_LISTED = 20  # failed (and not run) tasks listed on stderr; summary.csv has them all
+
+
 class BatchProgress:
     """One line on stderr: tasks done / running / failed, elapsed and left. On a terminal it is
     redrawn in place; otherwise a line is printed whenever a task ends."""
@@ -127,12 +130,15 @@ def batch(ctx, manifest, output, sweeps, workers, address, config_file, override
     click.echo(f"batch: {ok} of {len(days)} days done ({fresh} up to date, {ok - fresh} replayed), "
                f"{len(failed)} tasks failed, {len(not_run)} days not run, in {_clock(result.wall_s)}; "
                f"wrote {', '.join(str(p) for p in written)}")  # fmt: skip
-    for s in failed:
+    for s in failed[:MAX_LISTED]:
         logs = " ".join(str(p) for p in getattr(s.task, "logs", ()) or (s.task.plan,))
         click.echo(f"ltmap: failed: {s.task.label} ({logs}), {s.attempts} attempts: {s.result.get('error')}", err=True)
         if (ctx.obj or {}).get("debug") and s.result.get("traceback"):
             click.echo(s.result["traceback"], err=True)
-    for s in not_run:
+    for s in not_run[:MAX_LISTED]:
         click.echo(f"ltmap: not run: {s.task.label}: {s.reason}", err=True)
+    more = max(len(failed) - MAX_LISTED, 0) + max(len(not_run) - MAX_LISTED, 0)
+    if more:
+        click.echo(f"ltmap: ... {more} more failed or not run: see {written[0]}", err=True)
     if failed or not_run:
         ctx.exit(1)
