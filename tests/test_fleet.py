@@ -382,3 +382,17 @@ def test_a_batch_on_a_running_cluster_by_address_and_an_address_nobody_answers(t
     assert_same_maps(tmp_path / "out" / "a" / "day1", hand_chain(tmp_path / "hand", [[LOG4]])[0])
     line = one_error_line(ltmap("batch", manifest, "-o", tmp_path / "out2", "--address", "tcp://127.0.0.1:9"))
     assert "--address tcp://127.0.0.1:9: cannot reach a Dask scheduler" in line and "dask scheduler" in line
+
+
+@pytest.mark.slow
+def test_a_long_list_of_failures_is_cut_after_20_lines(tmp_path):
+    bad = tmp_path / "broken.mcap"
+    bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)
+    manifest = write_manifest(tmp_path / "fleet.yaml", {f"s{i:02d}": {"days": [[bad], [LOG1]]} for i in range(21)})
+    r = ltmap("batch", manifest, "-o", tmp_path / "out", "--workers", "2", "-q")
+    assert r.exit_code == 1, r.output
+    lines = r.output.splitlines()
+    assert sum(ln.startswith("ltmap: failed: ") for ln in lines) == 20
+    assert sum(ln.startswith("ltmap: not run: ") for ln in lines) == 20
+    assert f"ltmap: ... 2 more failed or not run: see {tmp_path / 'out' / 'summary.csv'}" in lines
+    assert sum(x["status"] == "failed" for x in summary(tmp_path / "out")) == 21
