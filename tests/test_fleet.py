@@ -18,6 +18,8 @@ from click.testing import CliRunner
 
 pytest.importorskip("distributed", reason="ltmap batch needs the fleet extra: pip install 'ltmap[fleet]'")
 
+from mapfactory import write_trinary  # noqa: E402
+
 from ltmap_cli.cli import cli  # noqa: E402
 from ltmap_cli.fleet.graph import build_plan, sweep_points  # noqa: E402
 from ltmap_cli.fleet.manifest import load_manifest  # noqa: E402
@@ -194,6 +196,16 @@ def test_fingerprints_change_with_the_config_and_from_a_changed_log_on(tmp_path)
                               "b": {"days": [["logs/b1.mcap"]]}})  # fmt: skip
     k_added = keys()
     assert {s: k for s, k in k_added.items() if s != ("a", 4)} == k1 and k_added[("a", 4)] not in k1.values()
+    # a site's static map: its image is an input too
+    room_map(tmp_path / "maps" / "room.yaml")
+    write_manifest(manifest, {"a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
+                              "b": {"static": "maps/room.yaml", "days": [["logs/b1.mcap"]]}})  # fmt: skip
+    k_static = keys()
+    assert k_static[("b", 1)] != k_added[("b", 1)]
+    (tmp_path / "maps" / "room.pgm").write_bytes((tmp_path / "maps" / "room.pgm").read_bytes() + b"\0")
+    assert keys()[("b", 1)] != k_static[("b", 1)] and keys()[("a", 1)] == k_static[("a", 1)]
+    write_manifest(manifest, {"a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
+                              "b": {"days": [["logs/b1.mcap"]]}})  # fmt: skip
     k2 = keys(sets=[("map.layers.lt_fall_s", 4.0)])
     assert not set(k2.values()) & set(k1.values())
     plan = build_plan(load_manifest(manifest), tmp_path / "out", sweeps=["map.layers.lt_fall_s=3,4"])
@@ -205,16 +217,27 @@ def test_fingerprints_change_with_the_config_and_from_a_changed_log_on(tmp_path)
 
 
 # ------------------------------------------------------------------------------------ batches
+def room_map(path: Path) -> Path:
+    """The samples' 8 x 5 m room as a map_server map (walls 0.1 m), for --static."""
+    occ = np.zeros((100, 160), dtype=np.int8)
+    occ[:2, :] = occ[-2:, :] = occ[:, :2] = occ[:, -2:] = 100
+    return write_trinary(path, occ)
+
+
 def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(tmp_path):
-    manifest = write_manifest(tmp_path / "fleet.yaml", {"a": {"days": [[LOG1], [LOG4]]}, "b": {"days": [[LOG5]]}})
+    static = room_map(tmp_path / "maps" / "room.yaml")
+    manifest = write_manifest(tmp_path / "fleet.yaml", {"a": {"days": [[LOG1], [LOG4]]},
+                                                        "b": {"static": "maps/room.yaml", "days": [[LOG5]]}})  # fmt: skip
     out = tmp_path / "out"
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
     assert r.exit_code == 0, r.output
     assert "3 of 3 days done (0 up to date, 3 replayed)" in r.output
     ha = hand_chain(tmp_path / "hand_a", [[LOG1], [LOG4]])
-    hb = hand_chain(tmp_path / "hand_b", [[LOG5]])
-    for got, want in zip([out / "a" / "day1", out / "a" / "day2", out / "b" / "day1"], ha + hb):
+    hb = hand_chain(tmp_path / "hand_b", [[LOG5]], "--static", static)  # a map YAML goes to the replay as it is
+    for got, want in zip([out / "a" / "day1", out / "a" / "day2"], ha):
         assert_same_maps(got, want)
+    assert_same_maps(out / "b" / "day1", hb[0], static=True)
+    assert not (out / "b" / "static").exists()
     rows = summary(out)
     assert [(r["site"], r["day"], r["status"]) for r in rows] == [
         ("a", "1", "done"), ("a", "2", "done"), ("a", "all", "done"), ("b", "1", "done"), ("b", "all", "done"),
