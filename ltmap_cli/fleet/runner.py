@@ -24,15 +24,15 @@ from pathlib import Path
 
 from ..errors import ConfigError, OutputError, output_error
 from .graph import BatchPlan, Chain, DayTask, StaticTask
-from .tasks import run_task
+from .tasks import DONE, FAILED, UP_TO_DATE, run_task
 
 LOCK_FILE = ".ltmap-batch.lock"
 POLL_S = 0.5  # the driver's refresh period (progress, completed tasks)
 CONNECT_TIMEOUT_S = 10
 WORKER_WAIT_S = 30  # a cluster without workers: how long to wait for the first before giving up
 
-# the states of a task, as the progress line and summary.csv show them
-QUEUED, DONE, UP_TO_DATE, FAILED, NOT_RUN = "queued", "done", "up to date", "failed", "not run"
+# the states of a task, as the progress line and summary.csv show them (and DONE, UP_TO_DATE, FAILED)
+QUEUED, NOT_RUN = "queued", "not run"
 
 
 @dataclass

@@ -13,7 +13,7 @@ import numpy as np
 
 from ..io.atomic import write_text_atomic
 from .graph import BatchPlan, DayTask
-from .runner import FAILED, NOT_RUN, BatchResult
+from .runner import DONE, FAILED, NOT_RUN, BatchResult
 
 SUMMARY_CSV = "summary.csv"
 SUMMARY_PNG = "summary.png"
@@ -97,7 +97,7 @@ def _total_row(point: str, site: str, days: list[tuple[dict, dict | None]], last
     day's (a site's map at the end) or, over sites, the sum of their last days'."""
     statuses = [r["status"] for r, _ in days]
     bad = [s for s in statuses if s in (FAILED, NOT_RUN)]
-    row = {"point": point, "site": site, "day": ALL, "status": f"{len(bad)} of {len(days)} not done" if bad else "done"}
+    row = {"point": point, "site": site, "day": ALL, "status": f"{len(bad)} of {len(days)} not done" if bad else DONE}
     reps = [(r, rep) for r, rep in days if rep is not None]
     if not reps:
         return row

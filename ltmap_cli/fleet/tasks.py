@@ -24,6 +24,7 @@ from pathlib import Path
 from ..errors import LtmapError, LtmapWarning, OutputError
 from .graph import DayTask, StaticTask
 
+DONE, UP_TO_DATE, FAILED = "done", "up to date", "failed"  # a task's result["status"]
 TASK_FILE = "batch_task.json"  # written last, inside the staging folder: the folder is complete
 STAGING_TAG = ".staging-"
 OLD_TAG = ".old-"
@@ -48,15 +49,15 @@ def run_task(task: StaticTask | DayTask, rerun: bool = False) -> dict:
     required = STATIC_OUTPUTS if isinstance(task, StaticTask) else DAY_OUTPUTS
     try:
         if not rerun and is_complete(task.out_dir, task.key, required):
-            return {"status": "up to date", "wall_s": time.perf_counter() - t0, **where}
+            return {"status": UP_TO_DATE, "wall_s": time.perf_counter() - t0, **where}
         _check_ours(task.out_dir)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", LtmapWarning)
             _in_staging(task, _build_static if isinstance(task, StaticTask) else _replay_day)
         shown = [str(w.message) for w in caught if issubclass(w.category, LtmapWarning)]
-        return {"status": "done", "wall_s": time.perf_counter() - t0, "warnings": shown, **where}
+        return {"status": DONE, "wall_s": time.perf_counter() - t0, "warnings": shown, **where}
     except Exception as exc:  # reported to the driver, which retries once
-        return {"status": "failed", "error": one_line(exc), "traceback": traceback.format_exc(),
+        return {"status": FAILED, "error": one_line(exc), "traceback": traceback.format_exc(),
                 "wall_s": time.perf_counter() - t0, **where}  # fmt: skip
 
 
