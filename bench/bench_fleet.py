@@ -45,7 +45,8 @@ SITES, DAYS = 4, 3
 def fleet(tmp: Path) -> tuple[Path, dict[str, list[Path]]]:
     days = {f"site{i + 1}": [SAMPLES[(i + k) % len(SAMPLES)] for k in range(DAYS)] for i in range(SITES)}
     text = "sites:\n" + "".join(
-        f"  {s}:\n    days:\n" + "".join(f"      - [{p}]\n" for p in logs) for s, logs in days.items())
+        f"  {s}:\n    days:\n" + "".join(f"      - [{p}]\n" for p in logs) for s, logs in days.items()
+    )
     (tmp / "fleet.yaml").write_text(text)
     return tmp / "fleet.yaml", days
 
@@ -66,7 +67,9 @@ def serial(days: dict[str, list[Path]], out: Path, plots: bool) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--workers", type=int, default=None, help="local engine workers [default: the cores]")
-    ap.add_argument("--plots", action="store_true", help="write each day's plots (as ltmap replay does by default)")
+    ap.add_argument(
+        "--plots", action="store_true", help="write each day's plots (as ltmap replay does by default)"
+    )
     args = ap.parse_args()
     if len(SAMPLES) < 5:
         sys.exit(f"bench_fleet: the samples 01..05 are missing under {ROOT / 'sample_logs'}")
@@ -88,17 +91,26 @@ def main() -> None:
         result, _ = execute(plan, engine)
         t_batch = time.perf_counter() - t0
         ok = all(s.status == DONE for s in result.states)
-        print(f"batch:  {result.engine}: {t_batch:.1f} s (engine start-up {engine.startup_s:.1f} s, target "
-              f"<= 10 s){'' if ok else '  SOME TASKS FAILED'}")  # fmt: skip
-        same = all((tmp / "batch" / s / f"day{i}" / f).read_bytes() == (tmp / "serial" / s / f"day{i}" / f).read_bytes()
-                   for s in days for i in range(1, DAYS + 1) for f in ("map.pgm", "long_term.pgm"))  # fmt: skip
+        print(
+            f"batch:  {result.engine}: {t_batch:.1f} s (engine start-up {engine.startup_s:.1f} s, target "
+            f"<= 10 s){'' if ok else '  SOME TASKS FAILED'}"
+        )
+        same = all(
+            (tmp / "batch" / s / f"day{i}" / f).read_bytes()
+            == (tmp / "serial" / s / f"day{i}" / f).read_bytes()
+            for s in days
+            for i in range(1, DAYS + 1)
+            for f in ("map.pgm", "long_term.pgm")
+        )
         print(f"maps of the batch equal the serial ones: {same}")
         print(f"ratio batch / serial: {t_batch / t_serial:.2f} (target <= 0.65 on 2 cores)")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     load1 = os.getloadavg()
-    print(f"load average (1, 5, 15 min) before: {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}; "
-          f"after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}")
+    print(
+        f"load average (1, 5, 15 min) before: {load0[0]:.2f} {load0[1]:.2f} {load0[2]:.2f}; "
+        f"after: {load1[0]:.2f} {load1[1]:.2f} {load1[2]:.2f}"
+    )
 
 
 if __name__ == "__main__":

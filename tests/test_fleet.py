@@ -33,8 +33,13 @@ LOG1 = SCEN / "01_static_object" / "log.mcap"  # 30 s, laser only: the quick one
 LOG4 = SCEN / "04_door" / "log.mcap"
 LOG5 = SCEN / "05_person" / "log.mcap"
 PLAN = ROOT / "sample_logs" / "plans" / "house.svg"
-SAME_FILES = ("map.pgm", "long_term.pgm", "events.csv", "snapshots/long_term_final.ot",
-              "snapshots/long_term_final.ply")  # fmt: skip
+SAME_FILES = (
+    "map.pgm",
+    "long_term.pgm",
+    "events.csv",
+    "snapshots/long_term_final.ot",
+    "snapshots/long_term_final.ply",
+)
 
 
 def ltmap(*args):
@@ -102,31 +107,61 @@ def logs(tmp_path):
 
 BAD_MANIFESTS = [
     ("- a\n- b\n", ["top level: expected a mapping with 'sites:', got a list"]),
-    ("sites:\n  lab:\n    days: [[logs/mon.mcap]]\nsite: {}\n", ["top level: unknown key 'site'", "known keys"]),
+    (
+        "sites:\n  lab:\n    days: [[logs/mon.mcap]]\nsite: {}\n",
+        ["top level: unknown key 'site'", "known keys"],
+    ),
     ("config: {}\n", ["top level: no 'sites:' mapping"]),
     ("sites: {}\n", ["sites: expected a mapping of site names"]),
     ("sites:\n  lab: [logs/mon.mcap]\n", ["sites.lab: expected a mapping with 'days:'"]),
     ("sites:\n  lab:\n    day: [[logs/mon.mcap]]\n", ["sites.lab: unknown key 'day'"]),
     ("sites:\n  lab:\n    static: plan.svg\n", ["sites.lab.static: plan.svg: no such file"]),
     ("sites:\n  lab:\n    days: []\n", ["sites.lab.days: expected a non-empty list"]),
-    ("sites:\n  lab:\n    days: logs/mon.mcap\n", ["sites.lab.days: expected a non-empty list", "'logs/mon.mcap'"]),
-    ("sites:\n  lab:\n    days:\n      - [logs/mon.mcap]\n      - logs/tue.mcap\n",
-     ["sites.lab.days: day 2: expected a list of logs, got 'logs/tue.mcap'", "- [logs/tue.mcap]"]),
+    (
+        "sites:\n  lab:\n    days: logs/mon.mcap\n",
+        ["sites.lab.days: expected a non-empty list", "'logs/mon.mcap'"],
+    ),
+    (
+        "sites:\n  lab:\n    days:\n      - [logs/mon.mcap]\n      - logs/tue.mcap\n",
+        ["sites.lab.days: day 2: expected a list of logs, got 'logs/tue.mcap'", "- [logs/tue.mcap]"],
+    ),
     ("sites:\n  lab:\n    days: [[logs/mon.mcap], []]\n", ["sites.lab.days: day 2: is an empty list"]),
-    ("sites:\n  lab:\n    days:\n      - [logs/mon.mcap]\n      -\n", ["sites.lab.days: day 2: expected a list of logs, got nothing"]),
-    ("sites:\n  lab:\n    days: [[logs/mon.mcap], [logs/tue.mcap, logs/wed.mcap]]\n",
-     ["sites.lab.days: day 2, log logs/wed.mcap: no such file or folder", "relative to the manifest"]),
-    ("sites:\n  lab:\n    days: [[logs/mon.mcap, 3]]\n", ["sites.lab.days: day 1: a log must be a path, got int"]),
-    ("sites:\n  lab:\n    days: [[logs/mon.mcap, logs/mon.mcap]]\n", ["day 1, log logs/mon.mcap: is listed twice"]),
-    ("sites:\n  lab:\n    static: plan.txt\n    days: [[logs/mon.mcap]]\n",
-     ["sites.lab.static: plan.txt: expected an SVG plan (.svg)"]),
-    ("sites:\n  lab:\n    static_options: {scale: 0.01}\n    days: [[logs/mon.mcap]]\n",
-     ["sites.lab.static_options: build-static options apply to an SVG plan only"]),
-    ("sites:\n  lab:\n    config: {map: {nope: 1}}\n    days: [[logs/mon.mcap]]\n",
-     ["sites.lab.config: unknown config key map.nope"]),
-    ("sites:\n  lab:\n    config: {map: {layers: {st_rise_s: fast}}}\n    days: [[logs/mon.mcap]]\n",
-     ["sites.lab.config: config key map.layers.st_rise_s must be a number, got 'fast'"]),
-    ("config: missing.yaml\nsites:\n  lab:\n    days: [[logs/mon.mcap]]\n", ["config: missing.yaml: no such file"]),
+    (
+        "sites:\n  lab:\n    days:\n      - [logs/mon.mcap]\n      -\n",
+        ["sites.lab.days: day 2: expected a list of logs, got nothing"],
+    ),
+    (
+        "sites:\n  lab:\n    days: [[logs/mon.mcap], [logs/tue.mcap, logs/wed.mcap]]\n",
+        ["sites.lab.days: day 2, log logs/wed.mcap: no such file or folder", "relative to the manifest"],
+    ),
+    (
+        "sites:\n  lab:\n    days: [[logs/mon.mcap, 3]]\n",
+        ["sites.lab.days: day 1: a log must be a path, got int"],
+    ),
+    (
+        "sites:\n  lab:\n    days: [[logs/mon.mcap, logs/mon.mcap]]\n",
+        ["day 1, log logs/mon.mcap: is listed twice"],
+    ),
+    (
+        "sites:\n  lab:\n    static: plan.txt\n    days: [[logs/mon.mcap]]\n",
+        ["sites.lab.static: plan.txt: expected an SVG plan (.svg)"],
+    ),
+    (
+        "sites:\n  lab:\n    static_options: {scale: 0.01}\n    days: [[logs/mon.mcap]]\n",
+        ["sites.lab.static_options: build-static options apply to an SVG plan only"],
+    ),
+    (
+        "sites:\n  lab:\n    config: {map: {nope: 1}}\n    days: [[logs/mon.mcap]]\n",
+        ["sites.lab.config: unknown config key map.nope"],
+    ),
+    (
+        "sites:\n  lab:\n    config: {map: {layers: {st_rise_s: fast}}}\n    days: [[logs/mon.mcap]]\n",
+        ["sites.lab.config: config key map.layers.st_rise_s must be a number, got 'fast'"],
+    ),
+    (
+        "config: missing.yaml\nsites:\n  lab:\n    days: [[logs/mon.mcap]]\n",
+        ["config: missing.yaml: no such file"],
+    ),
     ("sites:\n  a/b:\n    days: [[logs/mon.mcap]]\n", ["site 'a/b': a site name must be letters"]),
     ("sites:\n  lab:\n    days: [[logs/mon.mcap]\n", ["not valid YAML at line"]),
     ("", ["is empty; it needs a 'sites:' mapping"]),
@@ -148,23 +183,39 @@ def test_a_missing_manifest_and_bad_sweeps_are_one_line_errors(logs):
     manifest = write_manifest(logs / "fleet.yaml", {"lab": {"days": [["logs/mon.mcap"]]}})
     line = one_error_line(ltmap("batch", logs / "nope.yaml", "-o", logs / "out"))
     assert "manifest" in line and "nope.yaml does not exist" in line
-    for sweep, needle in [("map.layers.nope=1,2", "--sweep map.layers.nope=1,2: unknown config key map.layers.nope"),
-                          ("map.layers.st_rise_s", "expected KEY=V1,V2"),
-                          ("map.layers.st_rise_s=5,,10", "non-empty values"),
-                          ("map.layers.st_rise_s=5,fast", "must be a number, got 'fast'"),
-                          ("map.resolution=-1,0.1", "resolution")]:  # fmt: skip
+    for sweep, needle in [
+        ("map.layers.nope=1,2", "--sweep map.layers.nope=1,2: unknown config key map.layers.nope"),
+        ("map.layers.st_rise_s", "expected KEY=V1,V2"),
+        ("map.layers.st_rise_s=5,,10", "non-empty values"),
+        ("map.layers.st_rise_s=5,fast", "must be a number, got 'fast'"),
+        ("map.resolution=-1,0.1", "resolution"),
+    ]:
         line = one_error_line(ltmap("batch", manifest, "-o", logs / "out", "--sweep", sweep))
         assert needle in line, line
-    line = one_error_line(ltmap("batch", manifest, "-o", logs / "out", "--sweep", "map.layers.tick=0.1,0.2",
-                                "--sweep", "map.layers.tick=0.3"))  # fmt: skip
+    line = one_error_line(
+        ltmap(
+            "batch",
+            manifest,
+            "-o",
+            logs / "out",
+            "--sweep",
+            "map.layers.tick=0.1,0.2",
+            "--sweep",
+            "map.layers.tick=0.3",
+        )
+    )
     assert "--sweep map.layers.tick is given twice" in line
     assert not (logs / "out").exists()
 
 
 def test_sweep_points_are_the_cartesian_product_named_by_key_and_value():
     pts = sweep_points(["map.layers.st_rise_s=5,10", "map.resolution=0.05,0.1"])
-    assert [p.name for p in pts] == ["st_rise_s=5+resolution=0.05", "st_rise_s=5+resolution=0.1",
-                                     "st_rise_s=10+resolution=0.05", "st_rise_s=10+resolution=0.1"]  # fmt: skip
+    assert [p.name for p in pts] == [
+        "st_rise_s=5+resolution=0.05",
+        "st_rise_s=5+resolution=0.1",
+        "st_rise_s=10+resolution=0.05",
+        "st_rise_s=10+resolution=0.1",
+    ]
     assert pts[3].values == (("map.layers.st_rise_s", 10), ("map.resolution", 0.1))
     assert [p.name for p in sweep_points([])] == [""]
     pts = sweep_points(["replay.plan_goal=[1, 2],[3.5, -1]"])  # commas inside brackets do not split
@@ -176,8 +227,13 @@ def test_fingerprints_change_with_the_config_and_from_a_changed_log_on(tmp_path)
     (tmp_path / "logs").mkdir()
     for n in ("a1", "a2", "a3", "b1"):
         (tmp_path / "logs" / f"{n}.mcap").write_bytes(n.encode())
-    manifest = write_manifest(tmp_path / "fleet.yaml", {
-        "a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"]]}, "b": {"days": [["logs/b1.mcap"]]}})
+    manifest = write_manifest(
+        tmp_path / "fleet.yaml",
+        {
+            "a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"]]},
+            "b": {"days": [["logs/b1.mcap"]]},
+        },
+    )
 
     def keys(**kw):
         plan = build_plan(load_manifest(manifest), tmp_path / "out", **kw)
@@ -192,25 +248,42 @@ def test_fingerprints_change_with_the_config_and_from_a_changed_log_on(tmp_path)
     assert [k1[s] == k0[s] for s in (("a", 1), ("a", 2), ("a", 3), ("b", 1))] == [True, False, False, True]
     # tomorrow's log added to the manifest: the days before keep their fingerprints
     (tmp_path / "logs" / "a4.mcap").write_bytes(b"a4")
-    write_manifest(manifest, {"a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
-                              "b": {"days": [["logs/b1.mcap"]]}})  # fmt: skip
+    write_manifest(
+        manifest,
+        {
+            "a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
+            "b": {"days": [["logs/b1.mcap"]]},
+        },
+    )
     k_added = keys()
     assert {s: k for s, k in k_added.items() if s != ("a", 4)} == k1 and k_added[("a", 4)] not in k1.values()
     # a site's static map: its image is an input too
     room_map(tmp_path / "maps" / "room.yaml")
-    write_manifest(manifest, {"a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
-                              "b": {"static": "maps/room.yaml", "days": [["logs/b1.mcap"]]}})  # fmt: skip
+    write_manifest(
+        manifest,
+        {
+            "a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
+            "b": {"static": "maps/room.yaml", "days": [["logs/b1.mcap"]]},
+        },
+    )
     k_static = keys()
     assert k_static[("b", 1)] != k_added[("b", 1)]
     (tmp_path / "maps" / "room.pgm").write_bytes((tmp_path / "maps" / "room.pgm").read_bytes() + b"\0")
     assert keys()[("b", 1)] != k_static[("b", 1)] and keys()[("a", 1)] == k_static[("a", 1)]
-    write_manifest(manifest, {"a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
-                              "b": {"days": [["logs/b1.mcap"]]}})  # fmt: skip
+    write_manifest(
+        manifest,
+        {
+            "a": {"days": [["logs/a1.mcap"], ["logs/a2.mcap"], ["logs/a3.mcap"], ["logs/a4.mcap"]]},
+            "b": {"days": [["logs/b1.mcap"]]},
+        },
+    )
     k2 = keys(sets=[("map.layers.lt_fall_s", 4.0)])
     assert not set(k2.values()) & set(k1.values())
     plan = build_plan(load_manifest(manifest), tmp_path / "out", sweeps=["map.layers.lt_fall_s=3,4"])
     assert [str(d.out_dir.relative_to(tmp_path / "out")) for d in plan.chains[0].days][:2] == [
-        "a/lt_fall_s=3/day1", "a/lt_fall_s=3/day2"]
+        "a/lt_fall_s=3/day1",
+        "a/lt_fall_s=3/day2",
+    ]
     # lt_fall_s=3 is the default: the same parameters as no sweep, so the same fingerprints
     assert [d.key for d in plan.chains[0].days] == [k_added[("a", i)] for i in (1, 2, 3, 4)]
     assert [d.key for d in plan.chains[1].days] == [k2[("a", i)] for i in (1, 2, 3, 4)]
@@ -226,22 +299,31 @@ def room_map(path: Path) -> Path:
 
 def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(tmp_path):
     static = room_map(tmp_path / "maps" / "room.yaml")
-    manifest = write_manifest(tmp_path / "fleet.yaml", {"a": {"days": [[LOG1], [LOG4]]},
-                                                        "b": {"static": "maps/room.yaml", "days": [[LOG5]]}})  # fmt: skip
+    manifest = write_manifest(
+        tmp_path / "fleet.yaml",
+        {"a": {"days": [[LOG1], [LOG4]]}, "b": {"static": "maps/room.yaml", "days": [[LOG5]]}},
+    )
     out = tmp_path / "out"
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
     assert r.exit_code == 0, r.output
     assert "3 of 3 days done (0 up to date, 3 replayed)" in r.output
     ha = hand_chain(tmp_path / "hand_a", [[LOG1], [LOG4]])
-    hb = hand_chain(tmp_path / "hand_b", [[LOG5]], "--static", static)  # a map YAML goes to the replay as it is
+    hb = hand_chain(
+        tmp_path / "hand_b", [[LOG5]], "--static", static
+    )  # a map YAML goes to the replay as it is
     for got, want in zip([out / "a" / "day1", out / "a" / "day2"], ha):
         assert_same_maps(got, want)
     assert_same_maps(out / "b" / "day1", hb[0], static=True)
     assert not (out / "b" / "static").exists()
     rows = summary(out)
     assert [(r["site"], r["day"], r["status"]) for r in rows] == [
-        ("a", "1", "done"), ("a", "2", "done"), ("a", "all", "done"), ("b", "1", "done"), ("b", "all", "done"),
-        ("all", "all", "done")]  # fmt: skip
+        ("a", "1", "done"),
+        ("a", "2", "done"),
+        ("a", "all", "done"),
+        ("b", "1", "done"),
+        ("b", "all", "done"),
+        ("all", "all", "done"),
+    ]
     import json
 
     rep = json.loads((out / "a" / "day2" / "report.json").read_text())
@@ -276,22 +358,33 @@ def test_a_failing_log_is_retried_once_then_reported_and_the_other_sites_complet
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)
     plan = tmp_path / "broken.svg"
-    plan.write_text("<svg xmlns='http://www.w3.org/2000/svg'><line x1='0' y1='0' x2='1' y2='1'/></svg>")  # no scale
-    manifest = write_manifest(tmp_path / "fleet.yaml", {"bad": {"days": [[LOG1], [bad], [LOG4]]},
-                                                        "good": {"days": [[LOG1, LOG1.with_suffix(".bag")]]},
-                                                        "noplan": {"static": plan, "days": [[LOG1], [LOG4]]}})  # fmt: skip
+    plan.write_text(
+        "<svg xmlns='http://www.w3.org/2000/svg'><line x1='0' y1='0' x2='1' y2='1'/></svg>"
+    )  # no scale
+    manifest = write_manifest(
+        tmp_path / "fleet.yaml",
+        {
+            "bad": {"days": [[LOG1], [bad], [LOG4]]},
+            "good": {"days": [[LOG1, LOG1.with_suffix(".bag")]]},
+            "noplan": {"static": plan, "days": [[LOG1], [LOG4]]},
+        },
+    )
     out = tmp_path / "out"
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
     assert r.exit_code == 1, r.output
     lines = r.output.splitlines()
     assert sum("bad day 2 failed" in ln and "retrying once" in ln for ln in lines) == 1, r.output
     failed = [ln for ln in lines if ln.startswith("ltmap: failed: ")]
-    assert len(failed) == 2 and "bad day 2" in failed[1] and str(bad) in failed[1] and "2 attempts" in failed[1]
+    assert (
+        len(failed) == 2 and "bad day 2" in failed[1] and str(bad) in failed[1] and "2 attempts" in failed[1]
+    )
     # the plan fails in build-static's own words (no scale), and the site's days cannot run
     assert "noplan static plan" in failed[0] and "2 attempts" in failed[0] and "scale" in failed[0]
     assert [ln for ln in lines if ln.startswith("ltmap: not run: ")] == [
-        "ltmap: not run: bad day 3: day 2 failed", "ltmap: not run: noplan day 1: the static plan of noplan failed",
-        "ltmap: not run: noplan day 2: the static plan of noplan failed"]  # fmt: skip
+        "ltmap: not run: bad day 3: day 2 failed",
+        "ltmap: not run: noplan day 1: the static plan of noplan failed",
+        "ltmap: not run: noplan day 2: the static plan of noplan failed",
+    ]
     assert "Traceback" not in r.output
     # a replay's warning comes from its worker to the user's terminal, naming the day
     warned = [ln for ln in lines if ln.startswith("ltmap: warning: good day 1: ")]
@@ -315,14 +408,18 @@ def test_a_folder_ltmap_did_not_write_is_not_replaced(tmp_path):
     r = ltmap("batch", manifest, "-o", tmp_path / "out", "--workers", "1", "-q")
     assert r.exit_code == 1, r.output
     assert "was not written by ltmap batch; move it away" in r.output
-    assert (mine / "notes.txt").read_text() == "mine" and sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    assert (mine / "notes.txt").read_text() == "mine" and sorted(p.name for p in mine.iterdir()) == [
+        "notes.txt"
+    ]
 
 
 @pytest.mark.slow
 def test_a_plan_and_a_sweep_equal_the_hand_replays_with_build_static_and_set(tmp_path):
     manifest = write_manifest(tmp_path / "fleet.yaml", {"house": {"static": PLAN, "days": [[LOG1], [LOG5]]}})
     out = tmp_path / "out"
-    r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots", "--sweep", "map.layers.st_rise_s=5,15")
+    r = ltmap(
+        "batch", manifest, "-o", out, "--workers", "2", "--no-plots", "--sweep", "map.layers.st_rise_s=5,15"
+    )
     assert r.exit_code == 0, r.output
     assert sorted(p.name for p in (out / "house").iterdir()) == ["st_rise_s=15", "st_rise_s=5", "static"]
     static = tmp_path / "hand_static"
@@ -330,20 +427,35 @@ def test_a_plan_and_a_sweep_equal_the_hand_replays_with_build_static_and_set(tmp
     for f in ("static.pgm", "static.yaml", "static_layer.npz"):
         assert (out / "house" / "static" / f).read_bytes() == (static / f).read_bytes()
     for v in (5, 15):
-        hand = hand_chain(tmp_path / f"hand{v}", [[LOG1], [LOG5]], "--static", static,
-                          "--set", f"map.layers.st_rise_s={v}")  # fmt: skip
+        hand = hand_chain(
+            tmp_path / f"hand{v}", [[LOG1], [LOG5]], "--static", static, "--set", f"map.layers.st_rise_s={v}"
+        )
         for i, h in enumerate(hand, start=1):
             assert_same_maps(out / "house" / f"st_rise_s={v}" / f"day{i}", h, static=True)
     rows = summary(out)
     assert {(x["point"], x["site"], x["day"]) for x in rows} >= {
-        ("st_rise_s=5", "house", "1"), ("st_rise_s=15", "house", "2"), ("st_rise_s=5", "all", "all")}
+        ("st_rise_s=5", "house", "1"),
+        ("st_rise_s=15", "house", "2"),
+        ("st_rise_s=5", "all", "all"),
+    }
     # a shorter rise puts more into LT: the sweep shows in the summary
     lt = {x["point"]: int(x["long_term_voxels"]) for x in rows if x["site"] == "house" and x["day"] == "1"}
     assert lt["st_rise_s=5"] > lt["st_rise_s=15"]
     # a changed parameter: every day again, the plan (which does not depend on it) not
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob(TASK_FILE)}
-    r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots", "--sweep", "map.layers.st_rise_s=5,15",
-              "--set", "map.layers.lt_fall_s=4")  # fmt: skip
+    r = ltmap(
+        "batch",
+        manifest,
+        "-o",
+        out,
+        "--workers",
+        "2",
+        "--no-plots",
+        "--sweep",
+        "map.layers.st_rise_s=5,15",
+        "--set",
+        "map.layers.lt_fall_s=4",
+    )
     assert r.exit_code == 0, r.output
     assert "4 of 4 days done (0 up to date, 4 replayed)" in r.output
     assert [p for p in stamps if p.stat().st_mtime_ns == stamps[p]] == [out / "house" / "static" / TASK_FILE]
@@ -384,7 +496,9 @@ def test_a_worker_killed_in_the_middle_the_batch_completes_with_the_same_results
     assert pids[victim] not in {int(s.result["worker"].rsplit(":", 1)[1]) for s in result.states}
     # the task the killed worker was running was run again elsewhere, to the end
     assert len(killed) == 1
-    again = [s for s in result.states if killed[0].startswith("ltmap-" + s.task.label.replace(" ", "-") + "-")]
+    again = [
+        s for s in result.states if killed[0].startswith("ltmap-" + s.task.label.replace(" ", "-") + "-")
+    ]
     assert len(again) == 1 and again[0].status == DONE
     assert not [p for p in out.rglob("*") if ".staging-" in p.name]
     for site, chain in days.items():
@@ -399,7 +513,9 @@ def test_a_batch_on_a_running_cluster_by_address_and_an_address_nobody_answers(t
 
     manifest = write_manifest(tmp_path / "fleet.yaml", {"a": {"days": [[LOG4]]}})
     with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
-        r = ltmap("batch", manifest, "-o", tmp_path / "out", "--no-plots", "--address", cluster.scheduler_address)
+        r = ltmap(
+            "batch", manifest, "-o", tmp_path / "out", "--no-plots", "--address", cluster.scheduler_address
+        )
     assert r.exit_code == 0, r.output
     assert f"engine: Dask cluster at {cluster.scheduler_address} (1 worker)" in r.output
     assert_same_maps(tmp_path / "out" / "a" / "day1", hand_chain(tmp_path / "hand", [[LOG4]])[0])
@@ -411,7 +527,9 @@ def test_a_batch_on_a_running_cluster_by_address_and_an_address_nobody_answers(t
 def test_a_long_list_of_failures_is_cut_after_20_lines(tmp_path):
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)
-    manifest = write_manifest(tmp_path / "fleet.yaml", {f"s{i:02d}": {"days": [[bad], [LOG1]]} for i in range(21)})
+    manifest = write_manifest(
+        tmp_path / "fleet.yaml", {f"s{i:02d}": {"days": [[bad], [LOG1]]} for i in range(21)}
+    )
     r = ltmap("batch", manifest, "-o", tmp_path / "out", "--workers", "2", "-q")
     assert r.exit_code == 1, r.output
     lines = r.output.splitlines()

@@ -48,8 +48,10 @@ class BatchProgress:
         left = "?" if c.left_s is None else _clock(c.left_s)
         extra = f" ({c.up_to_date} up to date)" if c.up_to_date else ""
         tail = f", {c.not_run} not run" if c.not_run else ""
-        line = (f"batch: {c.done + c.up_to_date}/{c.total} done{extra}, {c.running} running, {c.failed} failed"
-                f"{tail} | {_clock(c.elapsed_s)} elapsed, {left} left")  # fmt: skip
+        line = (
+            f"batch: {c.done + c.up_to_date}/{c.total} done{extra}, {c.running} running, {c.failed} failed"
+            f"{tail} | {_clock(c.elapsed_s)} elapsed, {left} left"
+        )
         if self.tty:
             self.stream.write("\r\x1b[K" + line)
             self.stream.flush()
@@ -78,32 +80,63 @@ def _clock(s: float) -> str:
 
 @click.command("batch", help=HELP, short_help="Replay a fleet's logs (sites x days) on a Dask engine.")
 @click.argument("manifest", metavar="FLEET.yaml", type=click.Path(path_type=Path))
-@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("ltmap_batch"), show_default=True,
-              help="Output folder.")
-@click.option("--sweep", "sweeps", multiple=True, metavar="KEY=V1,V2,...",
-              help="Replay every site once per value of parameter KEY (repeatable: every combination), "
-              "e.g. --sweep map.layers.st_rise_s=5,10,15.")
-@click.option("--workers", type=click.IntRange(min=1), help="Worker processes of the local engine [default: the "
-              "machine's cores].")
-@click.option("--address", metavar="HOST:PORT", help="Run on a running Dask scheduler (e.g. tcp://head:8786) instead "
-              "of a local engine; OUT and the logs must be on a file system every worker sees.")
-@click.option("--config", "config_file", type=click.Path(path_type=Path),
-              help="Parameters from a YAML file (the names of config.yaml), under the manifest's own.")
-@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
-              help="Set a parameter for every site, e.g. --set map.layers.st_rise_s=10.")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    default=Path("ltmap_batch"),
+    show_default=True,
+    help="Output folder.",
+)
+@click.option(
+    "--sweep",
+    "sweeps",
+    multiple=True,
+    metavar="KEY=V1,V2,...",
+    help="Replay every site once per value of parameter KEY (repeatable: every combination), "
+    "e.g. --sweep map.layers.st_rise_s=5,10,15.",
+)
+@click.option(
+    "--workers",
+    type=click.IntRange(min=1),
+    help="Worker processes of the local engine [default: the machine's cores].",
+)
+@click.option(
+    "--address",
+    metavar="HOST:PORT",
+    help="Run on a running Dask scheduler (e.g. tcp://head:8786) instead "
+    "of a local engine; OUT and the logs must be on a file system every worker sees.",
+)
+@click.option(
+    "--config",
+    "config_file",
+    type=click.Path(path_type=Path),
+    help="Parameters from a YAML file (the names of config.yaml), under the manifest's own.",
+)
+@click.option(
+    "--set",
+    "overrides",
+    multiple=True,
+    metavar="KEY=VALUE",
+    help="Set a parameter for every site, e.g. --set map.layers.st_rise_s=10.",
+)
 @click.option("--no-plots", is_flag=True, help="Skip each day's plots/*.png (replay.plots: false).")
 @click.option("--rerun", is_flag=True, help="Replay every day, even those complete for the same inputs.")
 @click.option("--dry-run", is_flag=True, help="List the tasks and which are up to date; run nothing.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress line.")
 @click.pass_context
-def batch(ctx, manifest, output, sweeps, workers, address, config_file, overrides, no_plots, rerun, dry_run, quiet):
+def batch(
+    ctx, manifest, output, sweeps, workers, address, config_file, overrides, no_plots, rerun, dry_run, quiet
+):
     from ..fleet.graph import StaticTask, build_plan
     from ..fleet.manifest import load_manifest
     from ..fleet.runner import FAILED, NOT_RUN, UP_TO_DATE, Engine, execute
     from ..fleet.tasks import DAY_OUTPUTS, STATIC_OUTPUTS, is_complete
 
     if address and workers:
-        raise click.UsageError("--workers sizes the local engine; with --address the cluster's workers are used")
+        raise click.UsageError(
+            "--workers sizes the local engine; with --address the cluster's workers are used"
+        )
     fleet = load_manifest(manifest)
     sets = _parse_set(overrides) + ([("replay.plots", False)] if no_plots else [])
     plan = build_plan(fleet, output, config_file=config_file, sets=sets, sweeps=sweeps)
@@ -117,8 +150,9 @@ def batch(ctx, manifest, output, sweeps, workers, address, config_file, override
     bar = None if quiet else BatchProgress()
     notes = bar.note if bar is not None else (lambda text: click.echo(f"ltmap: {text}", err=True))
     try:
-        result, written = execute(plan, Engine(address=address, workers=workers), rerun=rerun, progress=bar,
-                                  notify=notes)  # fmt: skip
+        result, written = execute(
+            plan, Engine(address=address, workers=workers), rerun=rerun, progress=bar, notify=notes
+        )
     finally:
         if bar is not None:
             bar.close()
@@ -127,12 +161,17 @@ def batch(ctx, manifest, output, sweeps, workers, address, config_file, override
     days = [s for s in result.states if not isinstance(s.task, StaticTask)]
     fresh = sum(s.status == UP_TO_DATE for s in days)
     ok = len(days) - sum(s.status in (FAILED, NOT_RUN) for s in days)
-    click.echo(f"batch: {ok} of {len(days)} days done ({fresh} up to date, {ok - fresh} replayed), "
-               f"{len(failed)} tasks failed, {len(not_run)} days not run, in {_clock(result.wall_s)}; "
-               f"wrote {', '.join(str(p) for p in written)}")  # fmt: skip
+    click.echo(
+        f"batch: {ok} of {len(days)} days done ({fresh} up to date, {ok - fresh} replayed), "
+        f"{len(failed)} tasks failed, {len(not_run)} days not run, in {_clock(result.wall_s)}; "
+        f"wrote {', '.join(str(p) for p in written)}"
+    )
     for s in failed[:MAX_LISTED]:
         logs = " ".join(str(p) for p in getattr(s.task, "logs", ()) or (s.task.plan,))
-        click.echo(f"ltmap: failed: {s.task.label} ({logs}), {s.attempts} attempts: {s.result.get('error')}", err=True)
+        click.echo(
+            f"ltmap: failed: {s.task.label} ({logs}), {s.attempts} attempts: {s.result.get('error')}",
+            err=True,
+        )
         if (ctx.obj or {}).get("debug") and s.result.get("traceback"):
             click.echo(s.result["traceback"], err=True)
     for s in not_run[:MAX_LISTED]:

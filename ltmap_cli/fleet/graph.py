@@ -98,7 +98,9 @@ def parse_sweep(spec: str) -> tuple[str, list[tuple[str, Any]]]:
     import yaml
 
     if "=" not in spec:
-        raise ConfigError(f"--sweep {spec}: expected KEY=V1,V2,..., e.g. --sweep map.layers.st_rise_s=5,10,15")
+        raise ConfigError(
+            f"--sweep {spec}: expected KEY=V1,V2,..., e.g. --sweep map.layers.st_rise_s=5,10,15"
+        )
     key, raw = (s.strip() for s in spec.split("=", 1))
     texts, depth, cur = [], 0, ""
     for ch in raw:
@@ -113,8 +115,10 @@ def parse_sweep(spec: str) -> tuple[str, list[tuple[str, Any]]]:
             cur += ch
     texts.append(cur.strip())
     if not key or any(not t for t in texts):
-        raise ConfigError(f"--sweep {spec}: a key and non-empty values are needed, e.g. "
-                          "--sweep map.layers.st_rise_s=5,10,15")  # fmt: skip
+        raise ConfigError(
+            f"--sweep {spec}: a key and non-empty values are needed, e.g. "
+            "--sweep map.layers.st_rise_s=5,10,15"
+        )
     if len(set(texts)) != len(texts):
         raise ConfigError(f"--sweep {spec}: a value is given twice; give each once")
     values = []
@@ -146,15 +150,18 @@ def sweep_points(specs: list[str] | tuple[str, ...]) -> list[Point]:
         name = "+".join(f"{names[k]}={text}" for k, (text, _) in zip(keys, combo))
         name = POINT_NAME_CHARS.sub("_", name)
         if name in seen:
-            raise ConfigError(f"--sweep: two points would share the folder {name}; write the values differently")
+            raise ConfigError(
+                f"--sweep: two points would share the folder {name}; write the values differently"
+            )
         seen.add(name)
         points.append(Point(name, tuple((k, v) for k, (_, v) in zip(keys, combo))))
     return points
 
 
 # ------------------------------------------------------------------------------------ config
-def effective_config(manifest: Manifest, site: Site, config_file: Path | None, sets: list[tuple[str, Any]],
-                     point: Point) -> Config:  # fmt: skip
+def effective_config(
+    manifest: Manifest, site: Site, config_file: Path | None, sets: list[tuple[str, Any]], point: Point
+) -> Config:
     """Defaults < --config FILE < the manifest's config < the site's config < --set < the sweep point."""
     cfg = load_config(config_file)
     where = f"site {site.name}" + (f", sweep point {point.name}" if point.name else "")
@@ -219,8 +226,14 @@ def day_dir(out: Path, site: str, point: Point, day: int) -> Path:
     return base / DAY_DIR.format(n=day)
 
 
-def build_plan(manifest: Manifest, out: Path, *, config_file: Path | None = None,
-               sets: list[tuple[str, Any]] | None = None, sweeps: list[str] | tuple[str, ...] = ()) -> BatchPlan:  # fmt: skip
+def build_plan(
+    manifest: Manifest,
+    out: Path,
+    *,
+    config_file: Path | None = None,
+    sets: list[tuple[str, Any]] | None = None,
+    sweeps: list[str] | tuple[str, ...] = (),
+) -> BatchPlan:
     """Every task of the batch, with its folder and fingerprint (raises ConfigError / ManifestError)."""
     out = out.absolute()
     base = manifest.path.parent.absolute()
@@ -229,9 +242,12 @@ def build_plan(manifest: Manifest, out: Path, *, config_file: Path | None = None
     for site in manifest.sites:
         static_path, static_key = site.static, None
         if site.static_is_plan:
-            st_key = fingerprint({"kind": "static", "plan": input_identity(site.static, base),
-                                  "options": site.static_options})  # fmt: skip
-            task = StaticTask(site.name, site.static, dict(site.static_options), out / site.name / STATIC_DIR, st_key)
+            st_key = fingerprint(
+                {"kind": "static", "plan": input_identity(site.static, base), "options": site.static_options}
+            )
+            task = StaticTask(
+                site.name, site.static, dict(site.static_options), out / site.name / STATIC_DIR, st_key
+            )
             plan.statics[site.name] = task
             static_path, static_key = task.out_dir, st_key
         elif site.static is not None:
@@ -244,11 +260,30 @@ def build_plan(manifest: Manifest, out: Path, *, config_file: Path | None = None
             chain = Chain(site.name, point, [], plan.statics.get(site.name))
             prev_key, prev_dir = None, None
             for i, logs in enumerate(site.days, start=1):
-                key = fingerprint({"kind": "day", "config": settings, "logs": identities[i - 1],
-                                   "static": static_key, "previous": prev_key})  # fmt: skip
+                key = fingerprint(
+                    {
+                        "kind": "day",
+                        "config": settings,
+                        "logs": identities[i - 1],
+                        "static": static_key,
+                        "previous": prev_key,
+                    }
+                )
                 folder = day_dir(out, site.name, point, i)
-                chain.days.append(DayTask(site.name, point.name, i, logs, folder, static_path, prev_dir, cfg, key,
-                                          weights[i - 1]))  # fmt: skip
+                chain.days.append(
+                    DayTask(
+                        site.name,
+                        point.name,
+                        i,
+                        logs,
+                        folder,
+                        static_path,
+                        prev_dir,
+                        cfg,
+                        key,
+                        weights[i - 1],
+                    )
+                )
                 prev_key, prev_dir = key, folder
             plan.chains.append(chain)
     return plan

@@ -83,8 +83,10 @@ def load_manifest(path: str | Path) -> Manifest:
         raise ManifestError(f"manifest {p} {what}; give the fleet's YAML file (see docs/fleet.md)")
     size = p.stat().st_size
     if size > MAX_MANIFEST_BYTES:
-        raise ManifestError(f"manifest {p} is {size / 2**20:.0f} MB, over {MAX_MANIFEST_BYTES // 2**20} MB; "
-                            "is it the right file?")  # fmt: skip
+        raise ManifestError(
+            f"manifest {p} is {size / 2**20:.0f} MB, over {MAX_MANIFEST_BYTES // 2**20} MB; "
+            "is it the right file?"
+        )
     try:
         doc = yaml.safe_load(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
@@ -119,11 +121,16 @@ def parse_manifest(doc: Any, path: Path) -> Manifest:
     for raw_name, site_doc in sites_doc.items():
         name = str(raw_name) if isinstance(raw_name, (str, int)) and not isinstance(raw_name, bool) else None
         if name is None or not SITE_NAME.match(name):
-            raise bad(f"site {raw_name!r}", "a site name must be letters, digits, '.', '_' or '-' (it names the "
-                      "output folder OUT/<site>/), starting with a letter or digit")  # fmt: skip
+            raise bad(
+                f"site {raw_name!r}",
+                "a site name must be letters, digits, '.', '_' or '-' (it names the "
+                "output folder OUT/<site>/), starting with a letter or digit",
+            )
         where = f"sites.{name}"
         if not isinstance(site_doc, dict):
-            raise bad(where, f"expected a mapping with 'days:' (and optionally 'static:'), got {_kind(site_doc)}")
+            raise bad(
+                where, f"expected a mapping with 'days:' (and optionally 'static:'), got {_kind(site_doc)}"
+            )
         _known_keys(site_doc, SITE_KEYS, where, bad)
         static = None
         if site_doc.get("static") is not None:
@@ -135,12 +142,16 @@ def parse_manifest(doc: Any, path: Path) -> Manifest:
         if days_doc is None:
             raise bad(where, "no 'days:' list; add one: a list of days, each a list of logs")
         if not isinstance(days_doc, list) or not days_doc:
-            raise bad(f"{where}.days", f"expected a non-empty list of days (each a list of logs), got "
-                      f"{_kind(days_doc)}")  # fmt: skip
+            raise bad(
+                f"{where}.days",
+                f"expected a non-empty list of days (each a list of logs), got {_kind(days_doc)}",
+            )
         n_logs += sum(len(d) if isinstance(d, list) else 1 for d in days_doc)
         if n_logs > MAX_LOGS:
-            raise bad(f"{where}.days", f"more than {MAX_LOGS} logs in the manifest; split the fleet into "
-                      "several manifests")  # fmt: skip
+            raise bad(
+                f"{where}.days",
+                f"more than {MAX_LOGS} logs in the manifest; split the fleet into several manifests",
+            )
         days = []
         for i, day in enumerate(days_doc, start=1):
             dwhere = f"{where}.days: day {i}"
@@ -155,20 +166,28 @@ def parse_manifest(doc: Any, path: Path) -> Manifest:
                     raise bad(dwhere, f"a log must be a path, got {_kind(log)}")
                 lp = _resolve(base, log)
                 if not lp.exists():
-                    raise bad(f"{dwhere}, log {log}", f"no such file or folder ({lp}); fix the path (relative "
-                              "to the manifest)")  # fmt: skip
+                    raise bad(
+                        f"{dwhere}, log {log}",
+                        f"no such file or folder ({lp}); fix the path (relative to the manifest)",
+                    )
                 if not (lp.is_file() or lp.is_dir()):
-                    raise bad(f"{dwhere}, log {log}", "is neither a file nor a folder; give a .bag, an .mcap "
-                              "or a ROS 2 bag folder")  # fmt: skip
+                    raise bad(
+                        f"{dwhere}, log {log}",
+                        "is neither a file nor a folder; give a .bag, an .mcap or a ROS 2 bag folder",
+                    )
                 if lp in logs:
                     raise bad(f"{dwhere}, log {log}", "is listed twice in the same day; list it once")
                 logs.append(lp)
             days.append(tuple(logs))
-        sites.append(Site(name=name, days=tuple(days), static=static, static_options=options, config=site_config))
+        sites.append(
+            Site(name=name, days=tuple(days), static=static, static_options=options, config=site_config)
+        )
     lower = {}
     for s in sites:  # lab and Lab would share a folder on a case-insensitive file system
         if s.name.lower() in lower:
-            raise bad(f"sites.{s.name}", f"differs from site {lower[s.name.lower()]} only in case; rename one")
+            raise bad(
+                f"sites.{s.name}", f"differs from site {lower[s.name.lower()]} only in case; rename one"
+            )
         lower[s.name.lower()] = s.name
     return Manifest(path=path, sites=tuple(sites), config=config)
 
@@ -186,16 +205,25 @@ def _resolve(base: Path, text: str) -> Path:
 
 def _static_entry(value: Any, where: str, base: Path, bad) -> Path:
     if not isinstance(value, str) or not value.strip():
-        raise bad(where, f"expected the path of an SVG plan, a map YAML or a build-static folder, got {_kind(value)}")
+        raise bad(
+            where,
+            f"expected the path of an SVG plan, a map YAML or a build-static folder, got {_kind(value)}",
+        )
     p = _resolve(base, value)
     if not p.exists():
         raise bad(where, f"{value}: no such file or folder ({p}); fix the path (relative to the manifest)")
     if p.is_file() and p.suffix.lower() not in PLAN_SUFFIXES + MAP_SUFFIXES:
-        raise bad(where, f"{value}: expected an SVG plan (.svg), a map_server YAML (.yaml) or a build-static "
-                  "output folder")  # fmt: skip
+        raise bad(
+            where,
+            f"{value}: expected an SVG plan (.svg), a map_server YAML (.yaml) or a build-static "
+            "output folder",
+        )
     if p.is_dir() and not any((p / n).is_file() for n in ("static.yaml", "static_layer.npz")):
-        raise bad(where, f"{value}: this folder holds no static.yaml or static_layer.npz; give a build-static "
-                  "output folder, an SVG plan or a map YAML")  # fmt: skip
+        raise bad(
+            where,
+            f"{value}: this folder holds no static.yaml or static_layer.npz; give a build-static "
+            "output folder, an SVG plan or a map YAML",
+        )
     return p
 
 
@@ -205,7 +233,9 @@ def _static_options(value: Any, static: Path | None, where: str, bad) -> dict:
     if not isinstance(value, dict):
         raise bad(where, f"expected a mapping of build-static options, got {_kind(value)}")
     if static is None or static.suffix.lower() not in PLAN_SUFFIXES:
-        raise bad(where, "build-static options apply to an SVG plan only; give 'static: PLAN.svg' or remove them")
+        raise bad(
+            where, "build-static options apply to an SVG plan only; give 'static: PLAN.svg' or remove them"
+        )
     out = {}
     for key, v in value.items():
         if key not in STATIC_OPTIONS:
@@ -213,7 +243,7 @@ def _static_options(value: Any, static: Path | None, where: str, bad) -> dict:
         if key == "furniture":
             ok = v in FURNITURE
         elif key == "origin":
-            ok = (isinstance(v, list) and len(v) == 3 and all(_number(x) for x in v))
+            ok = isinstance(v, list) and len(v) == 3 and all(_number(x) for x in v)
             v = [float(x) for x in v] if ok else v
         else:
             ok = _number(v) and v > 0
@@ -237,14 +267,20 @@ def _config_entry(value: Any, where: str, base: Path, bad) -> dict:
     if isinstance(value, str):
         p = _resolve(base, value)
         if not p.is_file():
-            raise bad(where, f"{value}: no such file ({p}); give a YAML file of parameters (ltmap replay "
-                      "--dump-config writes one) or a mapping")  # fmt: skip
+            raise bad(
+                where,
+                f"{value}: no such file ({p}); give a YAML file of parameters (ltmap replay "
+                "--dump-config writes one) or a mapping",
+            )
         try:
             value = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
         except (yaml.YAMLError, UnicodeDecodeError):
             raise bad(where, f"{value}: not valid YAML; fix the syntax") from None
     if not isinstance(value, dict):
-        raise bad(where, f"expected a mapping of parameters (the names of config.yaml) or a file, got {_kind(value)}")
+        raise bad(
+            where,
+            f"expected a mapping of parameters (the names of config.yaml) or a file, got {_kind(value)}",
+        )
     _check_config([value], where, bad)
     return value
 

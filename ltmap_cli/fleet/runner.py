@@ -86,27 +86,39 @@ class Engine:
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError:
-            raise ConfigError("ltmap batch needs Dask.distributed; install it with pip install 'ltmap[fleet]'") from None
+            raise ConfigError(
+                "ltmap batch needs Dask.distributed; install it with pip install 'ltmap[fleet]'"
+            ) from None
         t0 = time.perf_counter()
         if self.address:
             try:
                 self.client = Client(self.address, timeout=f"{CONNECT_TIMEOUT_S}s")
             except (OSError, TimeoutError) as exc:
-                raise ConfigError(f"--address {self.address}: cannot reach a Dask scheduler ({exc}); start one with "
-                                  "`dask scheduler` or leave --address out to run on this machine") from None  # fmt: skip
+                raise ConfigError(
+                    f"--address {self.address}: cannot reach a Dask scheduler ({exc}); start one with "
+                    "`dask scheduler` or leave --address out to run on this machine"
+                ) from None
             try:
                 self.client.wait_for_workers(1, timeout=WORKER_WAIT_S)
             except TimeoutError:
                 self.client.close()
-                raise ConfigError(f"--address {self.address}: the scheduler has no workers after {WORKER_WAIT_S} s; "
-                                  f"start some with `dask worker {self.address}`") from None  # fmt: skip
+                raise ConfigError(
+                    f"--address {self.address}: the scheduler has no workers after {WORKER_WAIT_S} s; "
+                    f"start some with `dask worker {self.address}`"
+                ) from None
             n = len(self.client.scheduler_info().get("workers", {}))
             self.description = f"Dask cluster at {self.address} ({_workers(n)})"
         else:
             # one process per worker (the replay holds the GIL in places), one task at a time each;
             # no memory limit: a replay's memory is bounded by the map, not by Dask's share
-            self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                        dashboard_address=None, memory_limit=0, silence_logs=logging.ERROR)  # fmt: skip
+            self.cluster = LocalCluster(
+                n_workers=self.workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                memory_limit=0,
+                silence_logs=logging.ERROR,
+            )
             self.client = Client(self.cluster)
             self.description = f"local Dask cluster ({_workers(self.workers)})"
         self.startup_s = time.perf_counter() - t0
@@ -155,8 +167,10 @@ class OutputLock:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except OSError:
             os.close(fd)
-            raise OutputError(f"{self.out}: another ltmap batch is writing this folder; wait for it to end or "
-                              "choose another -o") from None  # fmt: skip
+            raise OutputError(
+                f"{self.out}: another ltmap batch is writing this folder; wait for it to end or "
+                "choose another -o"
+            ) from None
         self._fd = fd
         return self
 
@@ -168,9 +182,15 @@ class OutputLock:
 
 
 # ------------------------------------------------------------------------------------ driver
-def execute(plan: BatchPlan, engine: Engine, *, rerun: bool = False, plot: bool = True,
-            progress: Callable[[Counts], None] | None = None,
-            notify: Callable[[str], None] | None = None) -> tuple[BatchResult, list[Path]]:  # fmt: skip
+def execute(
+    plan: BatchPlan,
+    engine: Engine,
+    *,
+    rerun: bool = False,
+    plot: bool = True,
+    progress: Callable[[Counts], None] | None = None,
+    notify: Callable[[str], None] | None = None,
+) -> tuple[BatchResult, list[Path]]:
     """The whole batch: OUT locked, leftovers of killed tasks removed, the engine started (unless
     the caller did) and closed, every task run, the summary written. Returns the result and the
     summary files."""
@@ -184,8 +204,10 @@ def execute(plan: BatchPlan, engine: Engine, *, rerun: bool = False, plot: bool 
             if started_here:
                 engine.start()
                 if notify is not None:
-                    notify(f"engine: {engine.description}, started in {engine.startup_s:.1f} s; "
-                           f"{len(plan.tasks())} tasks ({len(plan.chains)} chains of days)")  # fmt: skip
+                    notify(
+                        f"engine: {engine.description}, started in {engine.startup_s:.1f} s; "
+                        f"{len(plan.tasks())} tasks ({len(plan.chains)} chains of days)"
+                    )
             result = run_batch(plan, engine.client, rerun=rerun, progress=progress, notify=notify)
         finally:
             if started_here:
@@ -195,9 +217,15 @@ def execute(plan: BatchPlan, engine: Engine, *, rerun: bool = False, plot: bool 
         return result, write_summary(plan, result, plot=plot)
 
 
-def run_batch(plan: BatchPlan, client, *, retries: int = 1, rerun: bool = False,
-              progress: Callable[[Counts], None] | None = None,
-              notify: Callable[[str], None] | None = None) -> BatchResult:  # fmt: skip
+def run_batch(
+    plan: BatchPlan,
+    client,
+    *,
+    retries: int = 1,
+    rerun: bool = False,
+    progress: Callable[[Counts], None] | None = None,
+    notify: Callable[[str], None] | None = None,
+) -> BatchResult:
     """Run every task of ``plan`` on the Dask ``client``; returns each task's final state.
 
     ``rerun``: replay every day even when its folder is up to date. ``notify``: one-line notes
@@ -260,7 +288,7 @@ def run_batch(plan: BatchPlan, client, *, retries: int = 1, rerun: bool = False,
                         not_run(c.days, f"the static plan of {task.site} failed")
                 else:
                     chain = chain_of[id(task)]
-                    not_run(chain.days[task.day:], f"day {task.day} failed")
+                    not_run(chain.days[task.day :], f"day {task.day} failed")
                 continue
             if isinstance(task, StaticTask):
                 for c in chains_of_site.get(task.site, []):

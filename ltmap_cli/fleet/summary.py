@@ -18,9 +18,25 @@ from .runner import DONE, FAILED, NOT_RUN, BatchResult
 SUMMARY_CSV = "summary.csv"
 SUMMARY_PNG = "summary.png"
 ALL = "all"
-COLUMNS = ("point", "site", "day", "status", "logs", "log_duration_s", "frames_used", "frames_skipped",
-           "wall_time_s", "speed_vs_real_time", "events_appeared", "events_disappeared", "add_latency_median_s",
-           "remove_latency_median_s", "long_term_voxels", "folder", "error")  # fmt: skip
+COLUMNS = (
+    "point",
+    "site",
+    "day",
+    "status",
+    "logs",
+    "log_duration_s",
+    "frames_used",
+    "frames_skipped",
+    "wall_time_s",
+    "speed_vs_real_time",
+    "events_appeared",
+    "events_disappeared",
+    "add_latency_median_s",
+    "remove_latency_median_s",
+    "long_term_voxels",
+    "folder",
+    "error",
+)
 
 
 def summary_rows(plan: BatchPlan, result: BatchResult) -> list[dict]:
@@ -72,23 +88,31 @@ def _report(day: DayTask) -> dict | None:
 
 
 def _day_row(day: DayTask, status: str, rep: dict | None, base: Path) -> dict:
-    row = {"point": day.point, "site": day.site, "day": day.day, "status": status,
-           "logs": " ".join(_rel(p, base) for p in day.logs), "folder": str(day.out_dir)}  # fmt: skip
+    row = {
+        "point": day.point,
+        "site": day.site,
+        "day": day.day,
+        "status": status,
+        "logs": " ".join(_rel(p, base) for p in day.logs),
+        "folder": str(day.out_dir),
+    }
     if rep is None:
         return row
     ev = rep.get("events") or {}
-    row.update({
-        "log_duration_s": rep.get("log_duration_s"),
-        "frames_used": sum((rep.get("frames_used") or {}).values()),
-        "frames_skipped": sum((rep.get("frames_skipped") or {}).values()),
-        "wall_time_s": rep.get("wall_time_s"),
-        "speed_vs_real_time": rep.get("speed_vs_real_time"),
-        "events_appeared": ev.get("appear"),
-        "events_disappeared": ev.get("disappear"),
-        "add_latency_median_s": (ev.get("add_latency_s") or {}).get("p50"),
-        "remove_latency_median_s": (ev.get("remove_latency_s") or {}).get("p50"),
-        "long_term_voxels": (rep.get("voxels") or {}).get("long_term_occupied"),
-    })  # fmt: skip
+    row.update(
+        {
+            "log_duration_s": rep.get("log_duration_s"),
+            "frames_used": sum((rep.get("frames_used") or {}).values()),
+            "frames_skipped": sum((rep.get("frames_skipped") or {}).values()),
+            "wall_time_s": rep.get("wall_time_s"),
+            "speed_vs_real_time": rep.get("speed_vs_real_time"),
+            "events_appeared": ev.get("appear"),
+            "events_disappeared": ev.get("disappear"),
+            "add_latency_median_s": (ev.get("add_latency_s") or {}).get("p50"),
+            "remove_latency_median_s": (ev.get("remove_latency_s") or {}).get("p50"),
+            "long_term_voxels": (rep.get("voxels") or {}).get("long_term_occupied"),
+        }
+    )
     return row
 
 
@@ -97,12 +121,23 @@ def _total_row(point: str, site: str, days: list[tuple[dict, dict | None]], last
     day's (a site's map at the end) or, over sites, the sum of their last days'."""
     statuses = [r["status"] for r, _ in days]
     bad = [s for s in statuses if s in (FAILED, NOT_RUN)]
-    row = {"point": point, "site": site, "day": ALL, "status": f"{len(bad)} of {len(days)} not done" if bad else DONE}
+    row = {
+        "point": point,
+        "site": site,
+        "day": ALL,
+        "status": f"{len(bad)} of {len(days)} not done" if bad else DONE,
+    }
     reps = [(r, rep) for r, rep in days if rep is not None]
     if not reps:
         return row
-    for k in ("log_duration_s", "frames_used", "frames_skipped", "wall_time_s", "events_appeared",
-              "events_disappeared"):  # fmt: skip
+    for k in (
+        "log_duration_s",
+        "frames_used",
+        "frames_skipped",
+        "wall_time_s",
+        "events_appeared",
+        "events_disappeared",
+    ):
         vals = [r[k] for r, _ in reps if r.get(k) is not None]
         row[k] = round(sum(vals), 3) if vals else None
     if row.get("wall_time_s"):

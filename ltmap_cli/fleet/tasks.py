@@ -57,8 +57,13 @@ def run_task(task: StaticTask | DayTask, rerun: bool = False) -> dict:
         shown = [str(w.message) for w in caught if issubclass(w.category, LtmapWarning)]
         return {"status": DONE, "wall_s": time.perf_counter() - t0, "warnings": shown, **where}
     except Exception as exc:  # reported to the driver, which retries once
-        return {"status": FAILED, "error": one_line(exc), "traceback": traceback.format_exc(),
-                "wall_s": time.perf_counter() - t0, **where}  # fmt: skip
+        return {
+            "status": FAILED,
+            "error": one_line(exc),
+            "traceback": traceback.format_exc(),
+            "wall_s": time.perf_counter() - t0,
+            **where,
+        }
 
 
 def one_line(exc: BaseException) -> str:
@@ -75,8 +80,10 @@ def one_line(exc: BaseException) -> str:
 def _check_ours(folder: Path) -> None:
     """Replace only what ltmap batch wrote: a folder without batch_task.json is someone else's."""
     if folder.exists() and not (folder / TASK_FILE).is_file():
-        raise OutputError(f"{folder} exists and was not written by ltmap batch; move it away or choose another "
-                          "output folder (-o)")  # fmt: skip
+        raise OutputError(
+            f"{folder} exists and was not written by ltmap batch; move it away or choose another "
+            "output folder (-o)"
+        )
 
 
 def _in_staging(task: StaticTask | DayTask, work) -> None:
@@ -113,9 +120,10 @@ def _relocate(staging: Path, final: Path) -> None:
         cfg.write_text("".join(ln.replace(old, new) if ln.startswith("#") else ln for ln in lines))
     rep = staging / "report.json"
     if rep.is_file():
+
         def fix(v):
             if isinstance(v, str):
-                return new + v[len(old):] if v.startswith(old) else v
+                return new + v[len(old) :] if v.startswith(old) else v
             if isinstance(v, list):
                 return [fix(x) for x in v]
             if isinstance(v, dict):
@@ -133,7 +141,9 @@ def _build_static(task: StaticTask, staging: Path) -> None:
     from ..static.svgplan import parse_plan
 
     o = task.options
-    parse_kw = {k: (tuple(o[k]) if k == "origin" else o[k]) for k in ("scale", "wall_thickness", "origin") if k in o}
+    parse_kw = {
+        k: (tuple(o[k]) if k == "origin" else o[k]) for k in ("scale", "wall_thickness", "origin") if k in o
+    }
     build_kw = {k: o[k] for k in ("resolution", "wall_height", "furniture") if k in o}
     layer, _ = build_from_plan(parse_plan(task.plan, **parse_kw), **build_kw)
     staging.mkdir(parents=True)

@@ -49,10 +49,22 @@ def write_summary_png(path: Path, rows: list[dict]) -> Path:
     FigureCanvasAgg(fig)
     axes = fig.subplots(2, 2)
     plot_days(axes[0, 0], rows, "long_term_voxels", "long-term voxels at the end of the day", "voxels")
-    plot_days(axes[0, 1], rows, "events_appeared", "events: appeared (solid), disappeared (dashed)", "events",
-              second="events_disappeared")  # fmt: skip
-    plot_days(axes[1, 0], rows, "add_latency_median_s", "median latency: add (solid), remove (dashed)", "s",
-              second="remove_latency_median_s")  # fmt: skip
+    plot_days(
+        axes[0, 1],
+        rows,
+        "events_appeared",
+        "events: appeared (solid), disappeared (dashed)",
+        "events",
+        second="events_disappeared",
+    )
+    plot_days(
+        axes[1, 0],
+        rows,
+        "add_latency_median_s",
+        "median latency: add (solid), remove (dashed)",
+        "s",
+        second="remove_latency_median_s",
+    )
     plot_days(axes[1, 1], rows, "speed_vs_real_time", "replay speed", "x real time")
     handles, labels = axes[0, 0].get_legend_handles_labels()
     if handles:
