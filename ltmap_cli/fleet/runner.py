@@ -117,7 +117,7 @@ class Engine:
                 processes=True,
                 dashboard_address=None,
                 memory_limit=0,
-                silence_logs=logging.ERROR,
+                silence_logs=logging.CRITICAL,  # a worker's failure reaches the user as its task's result
             )
             self.client = Client(self.cluster)
             self.description = f"local Dask cluster ({_workers(self.workers)})"
