@@ -27,6 +27,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "diff": ("ltmap_cli.commands.diff", "diff", "Compare two maps cell by cell."),
     "plan": ("ltmap_cli.commands.plan", "plan", "Plan an A* path on a map."),
     "simulate": ("ltmap_cli.commands.simulate", "simulate", "Write a simulated log from a scenario."),
+    "batch": ("ltmap_cli.commands.batch", "batch", "Replay a fleet's logs (sites x days) on a Dask engine."),
 }
 
 
