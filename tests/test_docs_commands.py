@@ -22,18 +22,18 @@ PLACEHOLDER = re.compile(r"\b[A-Z]{3,}[A-Z_.]*\b|\[-")
 
 
 def doc_commands(path: Path) -> list[tuple[str, str]]:
-    """(command, trailing comment) of the ``ltmap`` lines of the sh/bash blocks of ``path`` (the
-    README's first two blocks, install and tests, are what .ci/run runs)."""
-    out, block, n = [], None, 0
+    """(command, trailing comment) of the ``ltmap`` commands of the sh/bash blocks of ``path``
+    (a line's commands chained with ``&&`` taken one by one, as the README's install line)."""
+    out, block = [], None
     for line in path.read_text().splitlines():
         fence = line.strip()
         if block is None and fence in ("```sh", "```bash"):
-            block, n = [], n + 1
+            block = []
         elif block is not None and fence == "```":
-            if not (path.name == "README.md" and n <= 2):
-                text = "\n".join(block).replace("\\\n", " ")
-                for cmd in text.splitlines():
-                    cmd, _, comment = cmd.partition("#")
+            text = "\n".join(block).replace("\\\n", " ")
+            for line in text.splitlines():
+                line, _, comment = line.partition("#")
+                for cmd in line.split("&&"):
                     if cmd.strip().startswith("ltmap ") and not PLACEHOLDER.search(cmd):
                         out.append((" ".join(cmd.split()), comment.strip()))
             block = None
