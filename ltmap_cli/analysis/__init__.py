@@ -21,10 +21,10 @@ import numpy as np
 from ..core.config import ProjectionConfig
 from ..errors import MapFileError
 from ..io.mapfile import GridMap
+from ..thresholds import OCCUPIED_MIN  # noqa: F401 - a cell value >= this is occupied (re-exported)
 
 # what a map argument may be, for messages
 KINDS = "a map YAML, a replay output folder (ltmap replay -o DIR), a .ot snapshot or a state .npz snapshot"
-OCCUPIED_MIN = 65  # percent: a cell value >= this is occupied
 Z_BAND = (ProjectionConfig.z_min, ProjectionConfig.z_max)  # m: the band .ot and state snapshots are projected over
 
 

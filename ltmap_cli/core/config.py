@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..thresholds import FREE_THRESH, OCCUPIED_THRESH
+
 
 def logodds(p):
     """log(p / (1 - p)) of a probability (a float) or of an array of them."""
@@ -69,8 +71,8 @@ class ProjectionConfig:
 
     z_min: float = 0.05
     z_max: float = 1.5
-    occupied_thresh: float = 0.65
-    free_thresh: float = 0.196
+    occupied_thresh: float = OCCUPIED_THRESH
+    free_thresh: float = FREE_THRESH
     footprint_radius: float = 0.2  # m: cells within this of the robot's path are free in P (0: off)
 
 

@@ -60,6 +60,8 @@ import numpy as np
 from ltmap_cli.errors import ConfigError, LtmapWarning, MapFileError, shown
 from ltmap_cli.io.atomic import atomic_path, write_bytes_atomic, write_text_atomic
 
+from ..thresholds import FREE_THRESH, OCCUPIED_THRESH
+
 UNKNOWN = -1
 FREE = 0
 OCCUPIED = 100
@@ -526,8 +528,8 @@ def write_map(
     yaml_path: str | Path,
     grid: GridMap,
     mode: str = "trinary",
-    occupied_thresh: float = 0.65,
-    free_thresh: float = 0.196,
+    occupied_thresh: float = OCCUPIED_THRESH,
+    free_thresh: float = FREE_THRESH,
     png: bool = True,
     negate: bool = False,
 ) -> None:

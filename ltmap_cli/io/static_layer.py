@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MapFileError
+from ..thresholds import FREE_THRESH
 from .atomic import atomic_path
 from .mapfile import GridMap, read_map_yaml
 
@@ -30,7 +31,7 @@ MAP_YAML = "static.yaml"
 FORMAT = "ltmap-static-layer"
 VERSION = 1
 OCCUPIED_PERCENT = 65  # map_server's occupied_thresh 0.65, on the 0..100 scale
-FREE_PERCENT = 19.6  # map_server's free_thresh 0.196
+FREE_PERCENT = FREE_THRESH * 100  # map_server's free_thresh, as a 0..100 cell value
 
 
 @dataclass

@@ -13,6 +13,8 @@ import math
 
 import numpy as np
 
+from ..thresholds import OCCUPIED_MIN, OCCUPIED_THRESH
+
 # colours (RGB 0..255)
 FREE_RGB = (247, 247, 247)
 UNKNOWN_RGB = (180, 180, 180)
@@ -120,7 +122,7 @@ def _metre_axes(ax) -> None:
     ax.set_ylabel("y [m]")
 
 
-def occupancy_rgb(data: np.ndarray, occupied_min: int = 65) -> np.ndarray:
+def occupancy_rgb(data: np.ndarray, occupied_min: int = OCCUPIED_MIN) -> np.ndarray:
     """RGB of an occupancy grid: free light, unknown grey, occupied dark."""
     d = np.asarray(data)
     rgb = np.empty(d.shape + (3,), dtype=np.uint8)
@@ -307,7 +309,7 @@ def plot_layer_history(
     title: str,
     st_spread: tuple[np.ndarray, np.ndarray] | None = None,
     lt_spread: tuple[np.ndarray, np.ndarray] | None = None,
-    occupied_thresh: float = 0.65,
+    occupied_thresh: float = OCCUPIED_THRESH,
     marks: dict[str, float] | None = None,
     legend: bool = True,
 ) -> None:
@@ -792,7 +794,7 @@ def write_layer_history(
     events: list[dict],
     histories: dict,
     *,
-    occupied_thresh: float = 0.65,
+    occupied_thresh: float = OCCUPIED_THRESH,
     max_events: int = MAX_HISTORY_EVENTS,
 ) -> None:
     """One PNG with a ``plot_layer_history`` subplot per event (three columns), for the first
@@ -867,7 +869,7 @@ def write_summary_plots(
     periods_ms: dict[str, float],
     path_xy=None,
     robot_xy=None,
-    occupied_thresh: float = 0.65,
+    occupied_thresh: float = OCCUPIED_THRESH,
     targets=None,
     max_history_events: int = MAX_HISTORY_EVENTS,
     map3d: dict | None = None,
