@@ -8,6 +8,10 @@ from pathlib import Path
 import click
 
 from ..config import parse_set
+from ..fleet.graph import StaticTask, build_plan
+from ..fleet.manifest import load_manifest
+from ..fleet.runner import FAILED, NOT_RUN, UP_TO_DATE, Engine, execute
+from ..fleet.tasks import DAY_OUTPUTS, STATIC_OUTPUTS, is_complete
 
 HELP = """Replay a fleet's logs: many robots, sites and days (docs/fleet.md).
 
@@ -128,10 +132,6 @@ def _clock(s: float) -> str:
 def batch(
     ctx, manifest, output, sweeps, workers, address, config_file, overrides, no_plots, rerun, dry_run, quiet
 ):
-    from ..fleet.graph import StaticTask, build_plan
-    from ..fleet.manifest import load_manifest
-    from ..fleet.runner import FAILED, NOT_RUN, UP_TO_DATE, Engine, execute
-    from ..fleet.tasks import DAY_OUTPUTS, STATIC_OUTPUTS, is_complete
 
     if address and workers:
         raise click.UsageError(

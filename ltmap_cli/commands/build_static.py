@@ -8,6 +8,11 @@ from pathlib import Path
 
 import click
 
+from ..io.mapfile import read_map_yaml, write_map
+from ..io.static_layer import MAP_YAML, write_static_layer
+from ..outputs.folder import OutputFolder, listing
+from ..static.build import DEFAULT_MAX_CELLS, build_from_map, build_from_plan
+from ..static.svgplan import parse_plan
 from . import nonempty_output
 
 HELP = """Build the static map S from an architect's plan (SVG) or an existing map_server map.
@@ -123,11 +128,6 @@ def _positive(ctx, param, value):
 def build_static(
     plan: Path, output: Path, force: bool, resolution, scale, wall_height, wall_thickness, origin, furniture, max_cells
 ) -> None:
-    from ..io.mapfile import read_map_yaml, write_map
-    from ..io.static_layer import MAP_YAML, write_static_layer
-    from ..outputs.folder import OutputFolder, listing
-    from ..static.build import DEFAULT_MAX_CELLS, build_from_map, build_from_plan
-    from ..static.svgplan import parse_plan
 
     t0 = time.perf_counter()
     max_cells = DEFAULT_MAX_CELLS if max_cells is None else max_cells

@@ -7,7 +7,14 @@ from pathlib import Path
 
 import click
 
+from ..analysis import KINDS, load_grid, resolve_map_path
+from ..analysis.diff import diff_maps, diff_report, diff_voxels, voxel_report
 from ..core.config import ProjectionConfig
+from ..errors import InputError
+from ..io.atomic import check_file_target
+from ..outputs.folder import check_completed_input
+from ..outputs.snapshots import final_state, read_snapshot_voxels
+from ..viz.plots import new_figure, plot_diff, save_png
 
 
 def _describe(grid) -> str:
@@ -32,10 +39,6 @@ def _area_digits(cell_area: float) -> int:
 
 
 def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
-    from ..analysis import resolve_map_path
-    from ..analysis.diff import diff_voxels, voxel_report
-    from ..errors import InputError
-    from ..outputs.snapshots import final_state
 
     def snapshot(p: Path, name: str) -> Path:
         final = Path(p) / final_state()
@@ -55,7 +58,6 @@ def _run_3d(a: Path, b: Path, tolerance: int, as_json: bool) -> int:
                 f"--3d compares two long-term snapshots (.ot, state .npz or replay output folders); "
                 f"{name} {p} is none of these"
             )
-    from ..outputs.snapshots import read_snapshot_voxels
 
     ka, la, ra = read_snapshot_voxels(pa)
     kb, lb, rb = read_snapshot_voxels(pb)
@@ -153,16 +155,12 @@ def diff(
 
     Exit status: 0 same (nothing added or removed after --tolerance), 1 different, 2 error.
     """
-    from ..analysis import KINDS
-    from ..errors import InputError
-    from ..outputs.folder import check_completed_input
 
     for name, p in (("A", a), ("B", b)):  # a folder is read only when a run completed it
         check_completed_input(p, name, f"give {KINDS} of a completed run", "replay")
     if z_band[1] <= z_band[0]:
         raise InputError(f"--z-band {z_band[0]:g} {z_band[1]:g}: the top must exceed the bottom")
     if png is not None and not three_d:
-        from ..io.atomic import check_file_target
 
         check_file_target(png, "--png", "diff.png")
     if three_d:
@@ -171,8 +169,6 @@ def diff(
         ctx.exit(_run_3d(a, b, tolerance, as_json))
         return
 
-    from ..analysis import load_grid
-    from ..analysis.diff import diff_maps, diff_report
 
     ga = load_grid(a, "A", z_band)
     gb = load_grid(b, "B", z_band)
@@ -180,7 +176,6 @@ def diff(
     rep = diff_report(d)
 
     if png is not None:
-        from ..viz.plots import new_figure, plot_diff, save_png
 
         h, w = d.aligned.a.shape
         fig, ax = new_figure(w, h, legend=True)

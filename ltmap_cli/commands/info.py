@@ -12,9 +12,17 @@ Exit status 2, after the listing, for a truncated log (unless --allow-truncated)
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import click
+
+from ..config import ReplayConfig
+from ..core.config import MapConfig
+from ..errors import LogReadError, TransformError
+from ..io import decode as dec
+from ..io.logs import IMAGE, TruncatedLogError, open_logs
+from ..io.transforms import TfBuffer, choose_base_frame, choose_fixed_frame
 
 NS = 1_000_000_000
 OFFSET_SHOWN_S = 1.0  # header stamps this far from record time (either way) are shown
@@ -69,12 +77,6 @@ def gather(
 ) -> dict:
     """Everything `info` shows, as a dict (also used by tests and ``--json``). Raises like the
     readers. ``base_frame``: ``map.robot.base_frame`` (default: its default)."""
-    from ..config import ReplayConfig
-    from ..core.config import MapConfig
-    from ..errors import LogReadError, TransformError
-    from ..io import decode as dec
-    from ..io.logs import IMAGE, TruncatedLogError, open_logs
-    from ..io.transforms import TfBuffer, choose_base_frame, choose_fixed_frame
 
     with open_logs(paths, allow_truncated=True) as logs:
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
@@ -352,7 +354,6 @@ def info(
     would skip and why."""
     r = gather(list(logs), scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated)
     if as_json:
-        import json
 
         click.echo(json.dumps({k: (str(v) if k == "error" else v) for k, v in r.items()}, indent=2))
     else:

@@ -8,6 +8,12 @@ from pathlib import Path
 
 import click
 
+from ..analysis import KINDS, load_grid
+from ..analysis.planner import plan_on_grid
+from ..io.atomic import check_file_target
+from ..outputs.folder import check_completed_input
+from ..viz.plots import new_figure, plot_path, save_png
+
 
 class PointType(click.ParamType):
     """``x,y`` in metres."""
@@ -63,12 +69,8 @@ def plan(
     The length is measured between cell centres. Exit status: 0 path found, 1 no path, 2 error
     (e.g. start or goal off the map or inside an obstacle).
     """
-    from ..analysis import KINDS, load_grid
-    from ..analysis.planner import plan_on_grid
-    from ..outputs.folder import check_completed_input
 
     if png is not None:
-        from ..io.atomic import check_file_target
 
         check_file_target(png, "--png", "path.png")
 
@@ -77,7 +79,6 @@ def plan(
     res = plan_on_grid(grid, start, goal, robot_radius=robot_radius, allow_unknown=allow_unknown)
 
     if png is not None:
-        from ..viz.plots import new_figure, plot_path, save_png
 
         fig, ax = new_figure(grid.width, grid.height, legend=True)
         plot_path(

@@ -8,7 +8,11 @@ from pathlib import Path
 import click
 
 from ..analysis.hints import replay_hints
+from ..config import dump_config as dump
+from ..config import load_config, parse_set, set_dotted
 from ..errors import ConfigError
+from ..outputs.folder import OutputFolder, check_completed_input, listing
+from ..pipeline.replay import Replay, ReplayRequest
 from . import nonempty_output
 
 
@@ -106,8 +110,6 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
     layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
     (OctoMap .ot, .ply, exact state), report.json and config.yaml into the output folder."""
-    from ..config import dump_config as dump
-    from ..config import load_config, parse_set, set_dotted
 
     cfg = load_config(config_file)
     flags = {
@@ -143,8 +145,6 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     if not logs:
         raise click.UsageError("give at least one LOG (a .bag, a ROS 2 bag folder or an .mcap)")
 
-    from ..outputs.folder import OutputFolder, check_completed_input, listing
-    from ..pipeline.replay import Replay, ReplayRequest
 
     bar = None if quiet else ProgressBar()
     # first the output folder (lock, checks, staging): a bad -o must not cost a whole replay

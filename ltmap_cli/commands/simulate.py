@@ -7,6 +7,9 @@ from pathlib import Path
 
 import click
 
+from ..errors import ConfigError
+from ..sim.scenario import load_scenario
+from ..sim.simulate import simulate as run
 from . import nonempty_output
 
 HELP = """Write a simulated robot log from a scenario file, and its ground truth.
@@ -61,9 +64,6 @@ replaced as a whole (a folder ltmap did not write is refused unless --force).
 def simulate(
     scenario: Path, output: Path, fmt: str | None, ground_truth: Path | None, seed: int | None, force: bool, quiet: bool
 ) -> None:
-    from ..errors import ConfigError
-    from ..sim.scenario import load_scenario
-    from ..sim.simulate import simulate as run
 
     if fmt is None:
         fmt = {".bag": "ros1", ".mcap": "mcap", "": "ros2"}.get(output.suffix.lower(), "mcap")
