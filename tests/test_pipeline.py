@@ -199,3 +199,16 @@ def test_a_bag_whose_header_stamps_are_a_year_older_gives_the_same_map(tmp_path)
         assert "skipped" not in r.stdout.split(":")[1].split(",")[1] or " 0 skipped" in r.stdout, r.stdout
     for f in ("map.pgm", "long_term.pgm"):
         assert (outs["orig"] / f).read_bytes() == (outs["shifted"] / f).read_bytes(), f
+
+
+def test_frames_held_when_a_much_later_log_starts_are_placed_before_its_tf_arrives():
+    # two logs replayed as one stream, the second recorded a year after the first: the first's
+    # frames still held for tf (a long wait) are placed before the second's tf would push the
+    # first's samples out of the tf buffer's window
+    first = _log(0, n=40)
+    later = [(t + YEAR_NS, x) for t, x in _log(-YEAR_NS, n=5)]
+    events, _ = _run(first + later, wait_s=30.0)
+    placed = [e for e in events if isinstance(e, Placed)]
+    skipped = [e for e in events if isinstance(e, Skipped)]
+    assert len([e for e in placed if e.frame.stamp_ns < YEAR_NS]) >= 39  # all but the last one
+    assert len(skipped) <= 2, [e.reason for e in skipped]

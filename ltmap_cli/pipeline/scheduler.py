@@ -82,8 +82,9 @@ class FrameHold:
         ):
             yield heapq.heappop(heap)[3]
 
-    def flush(self) -> Iterator:
-        while self.heap:
+    def flush(self, before_ns: int | None = None) -> Iterator:
+        """The frames held (those stamped before ``before_ns``, when given), in stamp order."""
+        while self.heap and (before_ns is None or self.heap[0][0] < before_ns):
             yield heapq.heappop(self.heap)[3]
 
     def payloads(self) -> Iterator:
@@ -111,6 +112,11 @@ class Scheduler:
 
     def feed(self, topic: str, log_ns: int, item) -> Iterator[TfSeen | Placed | Skipped]:
         if isinstance(item, (TfSample, OdometrySample)):
+            if len(self.hold) and not (isinstance(item, TfSample) and item.static):
+                # a sample far newer than the frames held (the next of several logs, recorded long
+                # after) would push their tf out of the buffer's window: place them first
+                for t, frame in self.hold.flush(before_ns=item.stamp_ns - self.tf.window_ns // 2):
+                    yield self._place(t, frame)
             t0 = time.perf_counter()
             self.tf.add(item)
             if not (isinstance(item, TfSample) and item.static):
