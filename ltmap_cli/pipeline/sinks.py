@@ -430,9 +430,12 @@ class PlotsSink(Sink):
     FOLDER = "plots"
 
     def __init__(self, events: EventsSink, metrics: MetricsSink, planner: PlannerSink | None = None):
+        from ..viz.render3d import start_probe
+
         self.events = events
         self.metrics = metrics
         self.planner = planner
+        start_probe()  # whether open3d can render offscreen, found out while the log is mapped
 
     def finish(self, run) -> dict:
         from ..viz.plots import write_summary_plots

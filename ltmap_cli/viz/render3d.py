@@ -76,13 +76,39 @@ print("LTMAP_O3D_OK")
 """
 
 _probe_cache: bool | None = None
+_probe_proc: subprocess.Popen | None = None
+
+
+def start_probe() -> None:
+    """Start the probe of ``open3d_offscreen_available`` in the background (a replay does so at
+    its start, so that the 1 to 2 s the child takes overlap the mapping instead of the plots)."""
+    global _probe_proc
+    if _probe_cache is not None or _probe_proc is not None:
+        return
+    try:
+        _probe_proc = subprocess.Popen([sys.executable, "-c", _PROBE_CODE], stdin=subprocess.DEVNULL,
+                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+                                       env={**os.environ, "PYTHONWARNINGS": "ignore"})  # fmt: skip
+    except OSError:
+        _probe_proc = None
 
 
 def open3d_offscreen_available(refresh: bool = False) -> bool:
     """Whether open3d's OffscreenRenderer can render here. Probed once per process in a child
-    Python (a missing EGL may segfault it), then cached."""
-    global _probe_cache
+    Python (a missing EGL may segfault it), then cached; the answer of a probe started with
+    ``start_probe`` is used when there is one."""
+    global _probe_cache, _probe_proc
     if _probe_cache is not None and not refresh:
+        return _probe_cache
+    if _probe_proc is not None and not refresh:
+        proc, _probe_proc = _probe_proc, None
+        try:
+            out, _ = proc.communicate(timeout=PROBE_TIMEOUT_S)
+            _probe_cache = proc.returncode == 0 and "LTMAP_O3D_OK" in out
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.communicate()
+            _probe_cache = False
         return _probe_cache
     try:
         r = subprocess.run(
