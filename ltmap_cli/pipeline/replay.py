@@ -448,13 +448,7 @@ class Replay:
         c.rays += r.rays
         done = FrameDone(placed.topic, frame, placed.T, run.lmap.frame_id,
                          placed.lookup_s + cast.rays_s + cast.cast_s + integrate_s)  # fmt: skip
-        for s in self._frame_sinks:
-            t0 = time.perf_counter()
-            s.on_frame(run, done)
-            dt = time.perf_counter() - t0
-            if s is not self.metrics:
-                timer.add(s.frame_stage, dt)
-                done.cost_s += dt
+        self._call(self._frame_sinks, "on_frame", "frame_stage", done)
 
     def _tick(self, end_ns: int) -> None:
         run, timer = self.state, self.timer
@@ -463,13 +457,18 @@ class Replay:
         dt = time.perf_counter() - t0
         timer.add("ticks", dt)
         tick = TickDone(end_ns, (end_ns - run.log_start_ns) / NS, end_ns - self.ticker.t0_ns, tr, dt)
-        for s in self._tick_sinks:
+        self._call(self._tick_sinks, "on_tick", "tick_stage", tick)
+
+    def _call(self, sinks: list[Sink], hook: str, stage: str, event: FrameDone | TickDone) -> None:
+        """``hook`` of each sink with ``event``; each one's time counts to its stage and to the
+        event's cost, which the metrics sink (last) records."""
+        for s in sinks:
             t0 = time.perf_counter()
-            s.on_tick(run, tick)
+            getattr(s, hook)(self.state, event)
             dt = time.perf_counter() - t0
             if s is not self.metrics:
-                timer.add(s.tick_stage, dt)
-                tick.cost_s += dt
+                self.timer.add(getattr(s, stage), dt)
+                event.cost_s += dt
 
     def _report_progress(self, log_ns: int | None, force: bool = False, phase: str | None = None) -> None:
         if self.progress is None:
