@@ -38,8 +38,23 @@ from .grid import (
     voxel_offset,
 )
 from .raycast import (
+    FV_HITS,
+    FV_MISSES,
+    FV_PHASE,
+    FV_STATE_SLOTS,
+    GROW_DENSE,
+    GROW_MISSES,
+    SEEN_GROW,
+    SEEN_I0,
+    SEEN_K0,
     SEEN_MAX_WORDS,
+    SEEN_META_SLOTS,
+    SEEN_NX,
+    SEEN_NZ,
     SEEN_PAD,
+    SEEN_SPARSE_GEN,
+    SEEN_WORDS,
+    SEEN_WORDS_CAP,
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
     STATUS_NEED_CHANGED,
@@ -733,38 +748,39 @@ class LayeredMap:
         scratch = self._scratch
         if not hasattr(scratch, "seen"):
             scratch.seen = np.empty(0, dtype=np.uint64)
-            scratch.meta = np.zeros(12, dtype=np.int64)
+            scratch.meta = np.zeros(SEEN_META_SLOTS, dtype=np.int64)
             scratch.misses = np.empty(1 << 16, dtype=np.int64)
             scratch.sparse = _sparse_bitmap(1 << 10)
         meta = scratch.meta
-        meta[8] = self.seen_max_words
+        meta[SEEN_WORDS_CAP] = self.seen_max_words
         inv_res = 1.0 / self.resolution
         hits = np.empty(len(kind), dtype=np.int64)
-        state = np.zeros(4, dtype=np.int64)  # [phase, ray, hits listed, misses listed]
+        state = np.zeros(FV_STATE_SLOTS, dtype=np.int64)  # [phase, ray, hits listed, misses listed]
         checked = False
         while True:
             ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, meta, hits, scratch.misses,
                               *scratch.sparse, state)  # fmt: skip
-            if state[0] > 0 and not checked:  # the frame's box is known: within the keys' extent?
+            if state[FV_PHASE] > 0 and not checked:  # the frame's box is known: within the keys' extent?
                 # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
-                lo = (meta[1:4] + SEEN_PAD) * self.resolution
-                hi = (meta[1:4] + meta[4:7] - SEEN_PAD) * self.resolution
+                box0 = meta[SEEN_I0 : SEEN_K0 + 1]
+                lo = (box0 + SEEN_PAD) * self.resolution
+                hi = (box0 + meta[SEEN_NX : SEEN_NZ + 1] - SEEN_PAD) * self.resolution
                 check_extent(origin, float(np.max(np.maximum(origin - lo, hi - origin))), self.resolution)
                 checked = True
             if ok:
-                misses = scratch.misses[: state[3]]
+                misses = scratch.misses[: state[FV_MISSES]]
                 # hand the buffer over with the list (no copy) and start the next frame's buffer at
                 # the size this one needed, with room to spare
-                scratch.misses = np.empty(max(1 << 16, state[3] + state[3] // 4), dtype=np.int64)
-                return hits[: state[2]], misses
-            if meta[11] == 1:  # before any voxel is listed: the frame starts again
-                scratch.seen = np.empty(int(meta[7]), dtype=np.uint64)
-            elif meta[11] == 2:  # go on where it stopped, with what is listed
+                scratch.misses = np.empty(max(1 << 16, state[FV_MISSES] + state[FV_MISSES] // 4), dtype=np.int64)
+                return hits[: state[FV_HITS]], misses
+            if meta[SEEN_GROW] == GROW_DENSE:  # before any voxel is listed: the frame starts again
+                scratch.seen = np.empty(int(meta[SEEN_WORDS]), dtype=np.uint64)
+            elif meta[SEEN_GROW] == GROW_MISSES:  # go on where it stopped, with what is listed
                 bigger = np.empty(2 * len(scratch.misses), dtype=np.int64)
-                bigger[: state[3]] = scratch.misses[: state[3]]
+                bigger[: state[FV_MISSES]] = scratch.misses[: state[FV_MISSES]]
                 scratch.misses = bigger
             else:
-                scratch.sparse = sparse_grown(*scratch.sparse, meta[10], 4 * len(scratch.sparse[0]))
+                scratch.sparse = sparse_grown(*scratch.sparse, meta[SEEN_SPARSE_GEN], 4 * len(scratch.sparse[0]))
 
     def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0) -> FrameResult:
         """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's

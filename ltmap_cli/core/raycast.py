@@ -50,6 +50,18 @@ STATUS_NEED_CHANGED = 3
 SEEN_MAX_WORDS = 1 << 23  # 64 MB, 537 M voxels: a frame whose box is bigger takes the sparse bitmap
 
 
+# the slots of frame_voxels' bitmap state ``seen_meta`` (int64 array, read and written by kernels)
+(SEEN_DENSE, SEEN_I0, SEEN_J0, SEEN_K0, SEEN_NX, SEEN_NY, SEEN_NZ, SEEN_WORDS, SEEN_WORDS_CAP, SEEN_SPARSE_USED,
+ SEEN_SPARSE_GEN, SEEN_GROW) = range(12)  # fmt: skip
+SEEN_META_SLOTS = 12
+# the slots of its progress ``state``: phase (0 new frame, 1 hits, 2 misses), next ray, hits and
+# misses listed so far
+FV_PHASE, FV_RAY, FV_HITS, FV_MISSES = range(4)
+FV_STATE_SLOTS = 4
+# what frame_voxels needs grown when it returns False (seen_meta[SEEN_GROW])
+GROW_DENSE, GROW_MISSES, GROW_SPARSE = 1, 2, 3
+
+
 @njit(cache=True, nogil=True)
 def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
     """Per end point: (end point actually used (N, 3), kind (N,) int8).
@@ -123,19 +135,19 @@ def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
         hi_k = max(hi_k, k)
     pad = SEEN_PAD  # a ray may step past its end voxel (the stop rule allows a few steps)
     nx, ny, nz = hi_i - lo_i + 1 + 2 * pad, hi_j - lo_j + 1 + 2 * pad, hi_k - lo_k + 1 + 2 * pad
-    seen_meta[1], seen_meta[2], seen_meta[3] = lo_i - pad, lo_j - pad, lo_k - pad
-    seen_meta[4], seen_meta[5], seen_meta[6] = nx, ny, nz
+    seen_meta[SEEN_I0], seen_meta[SEEN_J0], seen_meta[SEEN_K0] = lo_i - pad, lo_j - pad, lo_k - pad
+    seen_meta[SEEN_NX], seen_meta[SEEN_NY], seen_meta[SEEN_NZ] = nx, ny, nz
     words_f = (np.float64(nx) * np.float64(ny) * np.float64(nz) + 63.0) / 64.0  # no int64 overflow
-    if words_f > np.float64(seen_meta[8]):
-        seen_meta[0] = 0
-        seen_meta[7] = 0
+    if words_f > np.float64(seen_meta[SEEN_WORDS_CAP]):
+        seen_meta[SEEN_DENSE] = 0
+        seen_meta[SEEN_WORDS] = 0
         return True
     words = (nx * ny * nz + 63) >> 6
-    seen_meta[7] = words
+    seen_meta[SEEN_WORDS] = words
     if words > seen.shape[0]:
         return False
     seen[:words] = 0
-    seen_meta[0] = 1
+    seen_meta[SEEN_DENSE] = 1
     return True
 
 
@@ -184,21 +196,21 @@ def _sparse_slot(bx, by, bz, sp_keys, sp_gen, sp_vals, sp_words, seen_meta):
     of blocks whose entries count only in this frame's generation (nothing to clear per frame);
     -1 when it is full (the caller grows it)."""
     mask = sp_keys.shape[0] - 1
-    gen = seen_meta[10]
+    gen = seen_meta[SEEN_SPARSE_GEN]
     packed = pack_block(bx, by, bz)
     s = _slot(packed, mask)
     while sp_gen[s] == gen:
         if sp_keys[s] == packed:
             return sp_vals[s]
         s = (s + 1) & mask
-    n = seen_meta[9]
+    n = seen_meta[SEEN_SPARSE_USED]
     if 2 * (n + 1) > sp_keys.shape[0] or 8 * (n + 1) > sp_words.shape[0]:
         return np.int64(-1)
     sp_gen[s] = gen
     sp_keys[s] = packed
     sp_vals[s] = n
     sp_words[8 * n:8 * n + 8] = 0
-    seen_meta[9] = n + 1
+    seen_meta[SEEN_SPARSE_USED] = n + 1
     return n
 
 
@@ -212,15 +224,15 @@ def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses
                  state):  # fmt: skip
     """See ``_frame_voxels``: the dense bitmap's loop, or the sparse one's when the frame's box is
     too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not)."""
-    if state[0] == 0:  # a new frame
-        seen_meta[9] = 0  # a new generation of the sparse bitmap: empty
-        seen_meta[10] += 1
+    if state[FV_PHASE] == 0:  # a new frame
+        seen_meta[SEEN_SPARSE_USED] = 0  # a new generation of the sparse bitmap: empty
+        seen_meta[SEEN_SPARSE_GEN] += 1
         if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
-            seen_meta[11] = 1
+            seen_meta[SEEN_GROW] = GROW_DENSE
             return False
-        state[0] = 1
-    seen_meta[11] = 0
-    if seen_meta[0] != 0:
+        state[FV_PHASE] = 1
+    seen_meta[SEEN_GROW] = 0
+    if seen_meta[SEEN_DENSE] != 0:
         return _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen,
                              sp_vals, sp_words, state)  # fmt: skip
     return _frame_voxels(origin, ends, kind, inv_res, res, None, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals,
@@ -231,9 +243,9 @@ def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses
 def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
                   state):  # fmt: skip
     """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
-    packed keys (``grid.pack_block``): hits into ``hits[:state[2]]`` (at most one per ray), misses into
-    ``misses[:state[3]]``. Returns True when done; False when a buffer must grow first:
-    ``seen_meta[11]`` says which (1 the dense bitmap, ``seen_meta[7]`` words; 2 the miss buffer;
+    packed keys (``grid.pack_block``): hits into ``hits[:state[FV_HITS]]`` (at most one per ray), misses into
+    ``misses[:state[FV_MISSES]]``. Returns True when done; False when a buffer must grow first:
+    ``seen_meta[SEEN_GROW]`` says which (1 the dense bitmap, ``seen_meta[SEEN_WORDS]`` words; 2 the miss buffer;
     3 the sparse bitmap). ``state`` = [phase (0 a new frame, 1 hits, 2 rays), ray, hits listed,
     misses listed]: the caller grows the buffer (keeping what is listed) and calls again, which
     goes on from the ray it stopped in (its voxels listed so far are marked: not listed twice).
@@ -246,15 +258,15 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
     passing the voxels near the camera); when the box is too big for a dense bitmap (long lidar
     rays, fine resolutions) a sparse one (``_sparse_visit``) takes every voxel. Reads no map
     state, so it may run in another thread than ``apply_voxels``."""
-    si0, sj0, sk0 = seen_meta[1], seen_meta[2], seen_meta[3]
-    snx, sny, snz = seen_meta[4], seen_meta[5], seen_meta[6]
+    si0, sj0, sk0 = seen_meta[SEEN_I0], seen_meta[SEEN_J0], seen_meta[SEEN_K0]
+    snx, sny, snz = seen_meta[SEEN_NX], seen_meta[SEEN_NY], seen_meta[SEEN_NZ]
     usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
     n = ends.shape[0]
     sp_cache = np.empty(4, dtype=np.int64)  # the sparse bitmap's last block and its slot: none yet
     sp_cache[0] = -(1 << 40)
     sp_cache[3] = -1
-    n_hit = state[2]
-    r0 = state[1] if state[0] == 1 else n
+    n_hit = state[FV_HITS]
+    r0 = state[FV_RAY] if state[FV_PHASE] == 1 else n
     for r in range(r0, n):
         if kind[r] != RAY_HIT:
             continue
@@ -264,8 +276,8 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
         if seen is None:
             first = _sparse_visit(i, j, k, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, sp_cache)
             if first < 0:
-                seen_meta[11] = 3
-                state[1], state[2] = r, n_hit
+                seen_meta[SEEN_GROW] = GROW_SPARSE
+                state[FV_RAY], state[FV_HITS] = r, n_hit
                 return False
             if first == 0:
                 continue
@@ -276,17 +288,17 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
         hits[n_hit] = pack_block(i, j, k)
         n_hit += 1
-    if state[0] == 1:
-        state[0], state[1], state[2] = 2, 0, n_hit
+    if state[FV_PHASE] == 1:
+        state[FV_PHASE], state[FV_RAY], state[FV_HITS] = 2, 0, n_hit
 
     cap = misses.shape[0]
-    n_miss = state[3]
+    n_miss = state[FV_MISSES]
     ox, oy, oz = origin[0], origin[1], origin[2]
     ki0 = np.int64(np.floor(ox * inv_res))
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
     big = 1e300
-    for r in range(state[1], n):
+    for r in range(state[FV_RAY], n):
         if kind[r] == RAY_SKIP:
             continue
         ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
@@ -325,8 +337,8 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
         max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
         steps = 0
         if n_miss + max_steps + 2 > cap:  # room for this ray's voxels, or the caller grows the buffer
-            seen_meta[11] = 2
-            state[1], state[3] = r, n_miss
+            seen_meta[SEEN_GROW] = GROW_MISSES
+            state[FV_RAY], state[FV_MISSES] = r, n_miss
             return False
         lin = ((ci - si0) * sny + (cj - sj0)) * snz + (ck - sk0)  # bit of (ci, cj, ck) when in the box
         lsx, lsy, lsz = si * sny * snz, sj * snz, sk
@@ -336,8 +348,8 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             if seen is None:  # the sparse bitmap (numba compiles this loop twice: seen None or not)
                 first = _sparse_visit(ci, cj, ck, sp_keys, sp_gen, sp_vals, sp_words, seen_meta, sp_cache)
                 if first < 0:
-                    seen_meta[11] = 3
-                    state[1], state[3] = r, n_miss
+                    seen_meta[SEEN_GROW] = GROW_SPARSE
+                    state[FV_RAY], state[FV_MISSES] = r, n_miss
                     return False
             else:  # the dense one; outside its box (a ray's last steps past its end voxel, rare) a
                 # voxel is listed at each step: apply_voxels drops those repeats by their stamps
@@ -375,7 +387,7 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             steps += 1
             if steps > max_steps:
                 break
-    state[1], state[3] = n, n_miss
+    state[FV_RAY], state[FV_MISSES] = n, n_miss
     return True
 
 
