@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import hashlib
 import json
 import os
 import subprocess
@@ -128,20 +127,7 @@ SCENES = {
 
 def ensure_log(scene: str) -> Path:
     """The scene's log.mcap, simulated once and cached (keyed by the scenario's text)."""
-    text = SCENES[scene]()
-    tag = hashlib.sha1(text.encode()).hexdigest()[:10]
-    folder = CACHE / f"long_rays_{scene}_{tag}"
-    log = folder / "log.mcap"
-    if log.is_file():
-        return log
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "scenario.yaml").write_text(text)
-    t0 = time.perf_counter()
-    print(f"simulating {scene} ({DURATION:g} s of log) into {folder} (once) ...", flush=True)
-    subprocess.run(bench_replay.ltmap_cmd("simulate", str(folder / "scenario.yaml"), "-o", str(log)), check=True,
-                   stdout=subprocess.DEVNULL)  # fmt: skip
-    print(f"  done in {time.perf_counter() - t0:.0f} s", flush=True)
-    return log
+    return bench_replay.simulated_log(f"long_rays_{scene}", SCENES[scene](), f"{scene} ({DURATION:g} s of log)")
 
 
 if __name__ == "__main__" and "--generate-only" in sys.argv:
@@ -175,12 +161,7 @@ def child(name: str, log: Path, out: Path) -> None:
     fast, threads, quiet = CONFIGS[name]
     if quiet is not None:
         LayeredMap.quiet_blocks = quiet
-    warm = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"  # numba kernels loaded / compiled
-    cfg = Config()
-    cfg.replay.plots = False
-    run = Replay(cfg, ReplayRequest([warm], out / "warmup"))
-    run.fast, run.threads = fast, threads
-    run.run()
+    bench_replay.warm_kernels(Replay, ReplayRequest, Config, out, fast, threads)
     cfg = Config()
     cfg.replay.plots = False
     run = Replay(cfg, ReplayRequest([log], out / "replay"))

@@ -118,23 +118,45 @@ def ltmap_cmd(*args: str) -> list[str]:
     return [sys.executable, "-m", "ltmap_cli", *args]
 
 
-def ensure_log(duration: float) -> tuple[Path, Path]:
-    """(log.mcap, static folder) of the bench scenario, simulated once and cached."""
-    text = scenario_yaml(duration)
+def simulated_log(prefix: str, text: str, what: str, minutes: float | None = None) -> Path:
+    """``log.mcap`` of the scenario ``text``, simulated once into ``bench/.cache/<prefix>_<hash of
+    the text>/`` (so a changed scenario is simulated again); the benches share it."""
     tag = hashlib.sha1(text.encode()).hexdigest()[:10]
-    folder = CACHE / f"replay_house_{int(duration)}s_{tag}"
-    log, static = folder / "log.mcap", folder / "static"
-    if log.is_file() and (static / "static.yaml").is_file():
-        return log, static
+    folder = CACHE / f"{prefix}_{tag}"
+    log = folder / "log.mcap"
+    if log.is_file():
+        return log
     folder.mkdir(parents=True, exist_ok=True)
     (folder / "scenario.yaml").write_text(text)
     t0 = time.perf_counter()
-    print(f"simulating {duration:g} s of log into {folder} (once; about {duration * 1.8 / 60:.0f} min) ...",
-          flush=True)
-    subprocess.run(ltmap_cmd("simulate", str(folder / "scenario.yaml"), "-o", str(log)), check=True)
-    subprocess.run(ltmap_cmd("build-static", str(PLAN), "-o", str(static)), check=True,
-                   stdout=subprocess.DEVNULL)
+    about = f"; about {minutes:.0f} min" if minutes is not None else ""
+    print(f"simulating {what} into {folder} (once{about}) ...", flush=True)
+    subprocess.run(ltmap_cmd("simulate", str(folder / "scenario.yaml"), "-o", str(log)), check=True,
+                   stdout=subprocess.DEVNULL)  # fmt: skip
     print(f"  done in {time.perf_counter() - t0:.0f} s", flush=True)
+    return log
+
+
+def warm_kernels(Replay, ReplayRequest, Config, out: Path, fast: bool, threads: bool) -> None:
+    """A replay of the house sample, so that every numba kernel is compiled or loaded from its
+    cache before a timed run (``Replay`` & co. of the code under test, which may be older)."""
+    warm = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
+    if warm.exists():
+        cfg = Config()
+        cfg.replay.plots = False
+        run = Replay(cfg, ReplayRequest([warm], out / "warmup"))
+        run.fast, run.threads = fast, threads
+        run.run()
+
+
+def ensure_log(duration: float) -> tuple[Path, Path]:
+    """(log.mcap, static folder) of the bench scenario, simulated once and cached."""
+    log = simulated_log(f"replay_house_{int(duration)}s", scenario_yaml(duration), f"{duration:g} s of log",
+                        minutes=duration * 1.8 / 60)  # fmt: skip
+    static = log.parent / "static"
+    if not (static / "static.yaml").is_file():
+        subprocess.run(ltmap_cmd("build-static", str(PLAN), "-o", str(static), "--force"), check=True,
+                       stdout=subprocess.DEVNULL)  # fmt: skip
     return log, static
 
 
@@ -171,15 +193,7 @@ def child(name: str, log: Path, static: Path, out: Path) -> None:
         from ltmap_cli.replay import Replay, ReplayRequest
 
     fast, threads, rate = CONFIGS[name]
-    # warm-up: a short replay of the house sample, so that every numba kernel is compiled or
-    # loaded from its cache before the timed run
-    warm = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
-    if warm.exists():
-        cfg = Config()
-        cfg.replay.plots = False
-        run = Replay(cfg, ReplayRequest([warm], out / "warmup"))
-        run.fast, run.threads = fast, threads
-        run.run()
+    warm_kernels(Replay, ReplayRequest, Config, out, fast, threads)
     cfg = Config()
     cfg.replay.plots = False
     cfg.map.sensor.depth_max_rate = rate

@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import hashlib
 import json
 import os
 import subprocess
@@ -36,6 +35,9 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import bench_replay  # noqa: E402  (simulated_log, code_at)
 
 ROOT = Path(__file__).resolve().parent.parent
 CACHE = ROOT / "bench" / ".cache"
@@ -129,19 +131,7 @@ def scenario_yaml(rate_depth: float) -> tuple[str, float]:
 
 def ensure_log(rate_depth: float) -> Path:
     text, duration = scenario_yaml(rate_depth)
-    tag = hashlib.sha1(text.encode()).hexdigest()[:10]
-    folder = CACHE / f"scale_office_{tag}"
-    log = folder / "log.mcap"
-    if log.is_file():
-        return log
-    folder.mkdir(parents=True, exist_ok=True)
-    (folder / "scenario.yaml").write_text(text)
-    print(f"simulating the office floor ({duration:.0f} s of log) into {folder} (once) ...", flush=True)
-    t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "ltmap_cli", "simulate", str(folder / "scenario.yaml"), "-o", str(log)],
-                   check=True)
-    print(f"  done in {time.perf_counter() - t0:.0f} s", flush=True)
-    return log
+    return bench_replay.simulated_log("scale_office", text, f"the office floor ({duration:.0f} s of log)")
 
 
 def child(log: Path, out: Path) -> None:
@@ -222,10 +212,7 @@ def main() -> None:
           f"Python {platform.python_version()}")
     print(f"log: {log} ({log.stat().st_size / 2**20:.0f} MiB); load average before {os.getloadavg()[0]:.2f}")
     if args.before:
-        sys.path.insert(0, str(Path(__file__).parent))
-        from bench_replay import code_at
-
-        before = run_child(log, code_at(args.before))
+        before = run_child(log, bench_replay.code_at(args.before))
         report(before, f"before {args.before}")
     r = run_child(log)
     print(f"load average after {os.getloadavg()[0]:.2f}")
