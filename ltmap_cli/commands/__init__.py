@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import click
@@ -14,3 +15,34 @@ def nonempty_output(ctx: click.Context, param: click.Parameter, value: Path | No
         raise click.BadParameter("-o '' or -o . names the current folder, which the output would replace; give "
                                  "an output path, e.g. -o out")
     return value
+
+
+class StatusLine:
+    """A status line on stderr: on a terminal redrawn in place (``show``); elsewhere (CI logs)
+    printed as a line of its own when ``show`` is told it is worth one. ``note`` prints a line
+    off the status line; ``close`` ends it."""
+
+    def __init__(self, stream=None):
+        self.stream = stream or sys.stderr
+        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        self._open = False
+
+    def show(self, line: str, new: bool) -> None:
+        if self.tty:
+            self.stream.write("\r\x1b[K" + line)
+            self.stream.flush()
+            self._open = True
+        elif new:
+            self.stream.write(line + "\n")
+
+    def note(self, text: str) -> None:
+        if self._open:
+            self.stream.write("\r\x1b[K")
+        self.stream.write(text + "\n")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self._open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._open = False

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
@@ -12,6 +11,7 @@ from ..fleet.graph import StaticTask, build_plan
 from ..fleet.manifest import load_manifest
 from ..fleet.runner import FAILED, NOT_RUN, UP_TO_DATE, Engine, execute
 from ..fleet.tasks import DAY_OUTPUTS, STATIC_OUTPUTS, is_complete
+from . import StatusLine
 
 HELP = """Replay a fleet's logs: many robots, sites and days (docs/fleet.md).
 
@@ -38,15 +38,13 @@ failed (listed); 2: bad manifest or options.
 MAX_LISTED = 20  # failed (and not run) tasks listed on stderr; summary.csv has them all
 
 
-class BatchProgress:
-    """One line on stderr: tasks done / running / failed, elapsed and left. On a terminal it is
-    redrawn in place; otherwise a line is printed whenever a task ends."""
+class BatchProgress(StatusLine):
+    """One line on stderr: tasks done / running / failed, elapsed and left; outside a terminal a
+    line whenever a task ends."""
 
     def __init__(self, stream=None):
-        self.stream = stream or sys.stderr
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
+        super().__init__(stream)
         self._last = None
-        self._open = False
 
     def __call__(self, c) -> None:
         left = "?" if c.left_s is None else _clock(c.left_s)
@@ -56,25 +54,13 @@ class BatchProgress:
             f"batch: {c.done + c.up_to_date}/{c.total} done{extra}, {c.running} running, {c.failed} failed"
             f"{tail} | {_clock(c.elapsed_s)} elapsed, {left} left"
         )
-        if self.tty:
-            self.stream.write("\r\x1b[K" + line)
-            self.stream.flush()
-            self._open = True
-        elif (c.finished, c.failed) != self._last:
-            self._last = (c.finished, c.failed)
-            self.stream.write(line + "\n")
+        new = (c.finished, c.failed) != self._last
+        self._last = (c.finished, c.failed)
+        self.show(line, new)
 
     def note(self, text: str) -> None:
         """A line of its own (a retry, a task's warning), off the progress line."""
-        if self._open:
-            self.stream.write("\r\x1b[K")
-        click.echo(f"ltmap: {text}", err=True)
-
-    def close(self) -> None:
-        if self._open:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._open = False
+        super().note(f"ltmap: {text}")
 
 
 def _clock(s: float) -> str:

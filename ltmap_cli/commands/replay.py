@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
@@ -13,27 +12,25 @@ from ..config import load_config, parse_set, set_dotted
 from ..errors import ConfigError
 from ..outputs.folder import OutputFolder, check_completed_input, listing
 from ..pipeline.replay import Replay, ReplayRequest
-from . import nonempty_output
+from . import StatusLine, nonempty_output
 
 
-class ProgressBar:
-    """A one-line bar on stderr: log time done / total, frames/s, speed against real time.
-
-    On a terminal it redraws in place; otherwise (CI logs) it prints a line every 10 %."""
+class ProgressBar(StatusLine):
+    """A one-line bar on stderr: log time done / total, frames/s, speed against real time;
+    outside a terminal a line every 10 %. Steps other than mapping (compiling kernels, writing
+    plots) are named once, on lines of their own."""
 
     def __init__(self, stream=None, width: int = 28):
-        self.stream = stream or sys.stderr
+        super().__init__(stream)
         self.width = width
-        self.tty = hasattr(self.stream, "isatty") and self.stream.isatty()
         self._last_decile = -1
         self._phase = None
 
     def __call__(self, p) -> None:
-        if p.phase is not None:  # a step after or before mapping the log: named once
+        if p.phase is not None:
             if p.phase != self._phase:
                 self._phase = p.phase
-                self.stream.write(("\n" if self.tty else "") + f"ltmap: {p.phase} ...\n")
-                self.stream.flush()
+                self.note(f"ltmap: {p.phase} ...")
             return
         frac = min(p.log_done_s / p.log_total_s, 1.0) if p.log_total_s > 0 else 1.0
         fill = int(frac * self.width)
@@ -42,17 +39,11 @@ class ProgressBar:
             f"[{'#' * fill}{'.' * (self.width - fill)}] {p.log_done_s:7.1f}/{p.log_total_s:.1f} s log"
             f" | {fps:6.1f} frames/s | {p.speed:5.1f}x real time"
         )
-        if self.tty:
-            self.stream.write("\r" + line)
-            self.stream.flush()
-        elif int(frac * 10) > self._last_decile or (frac >= 1.0 and self._last_decile < 10):
-            self._last_decile = 10 if frac >= 1.0 else int(frac * 10)
-            self.stream.write(line + "\n")
-
-    def close(self) -> None:
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
+        decile = 10 if frac >= 1.0 else int(frac * 10)
+        new = decile > self._last_decile
+        if new:
+            self._last_decile = decile
+        self.show(line, new)
 
 
 def _xy(text: str, flag: str) -> list[float]:
