@@ -21,25 +21,25 @@ DEFAULT_DEPTH_UNITS = 0.001  # metres per unit of a 16-bit depth image (ROS' 16U
 _STREAM_IMAGE = re.compile(r"^(?P<sensor>.*/sensor_\d+)/(?P<stream>[^/]+)/image/data$")
 
 
-def camera_info_topic(image_topic: str, topics: Mapping[str, Any]) -> str | None:
-    """The CameraInfo topic of a RealSense SDK image topic (``.../<Stream>/info/camera_info``),
-    or None when ``image_topic`` is not laid out that way or the topic is absent."""
+def _sensor_topic(image_topic: str, topics: Mapping[str, Any], path: str, msgtype: str) -> str | None:
+    """``<sensor>/<path>`` (``{stream}`` filled in) of the RealSense SDK image topic when the log
+    has it with ``msgtype``; None when ``image_topic`` is not laid out that way or it is absent."""
     m = _STREAM_IMAGE.match(image_topic)
     if m is None:
         return None
-    name = f"{m['sensor']}/{m['stream']}/info/camera_info"
+    name = f"{m['sensor']}/{path.format(stream=m['stream'])}"
     t = topics.get(name)
-    return name if t is not None and getattr(t, "msgtype", None) == CAMERA_INFO else None
+    return name if t is not None and getattr(t, "msgtype", None) == msgtype else None
+
+
+def camera_info_topic(image_topic: str, topics: Mapping[str, Any]) -> str | None:
+    """The CameraInfo topic of a RealSense SDK image topic (``.../<Stream>/info/camera_info``)."""
+    return _sensor_topic(image_topic, topics, "{stream}/info/camera_info", CAMERA_INFO)
 
 
 def depth_units_topic(image_topic: str, topics: Mapping[str, Any]) -> str | None:
-    """The ``Depth Units`` option topic of the sensor that records ``image_topic``, or None."""
-    m = _STREAM_IMAGE.match(image_topic)
-    if m is None:
-        return None
-    name = f"{m['sensor']}/option/{DEPTH_UNITS_OPTION}/value"
-    t = topics.get(name)
-    return name if t is not None and getattr(t, "msgtype", None) == FLOAT32 else None
+    """The ``Depth Units`` option topic of the sensor that records ``image_topic``."""
+    return _sensor_topic(image_topic, topics, f"option/{DEPTH_UNITS_OPTION}/value", FLOAT32)
 
 
 def depth_units(msg: Any) -> float | None:
