@@ -205,3 +205,21 @@ def test_quiet_counts_survive_storage_growing_mid_frame():
     assert np.array_equal(tight._quiet.nfree[:n], (tight.O.data["logodds"][:n] == lo_min).sum(axis=1))
     assert np.array_equal(tight._quiet.quiet[:n], ref._quiet.quiet[:n])
     assert len(tight._quiet.changed) > 1 and tight._quiet.quiet[:n].sum() > 0
+
+
+def test_a_full_list_of_changed_blocks_puts_no_voxel_twice_in_the_tick_buffer():
+    """The kernel stops for a longer list of changed blocks before it writes anything of the
+    voxel it is at, so the voxel is not put in the tick buffer a second time when it resumes."""
+    frames = _frames(6, seed=7)
+    ref, tight = LayeredMap(), LayeredMap()
+    q = tight._quiet_sync()
+    q.changed = q.changed[:1].copy()
+    for origin, ends, kind in frames:
+        ref.end_tick()  # each frame in a tick of its own: every voxel it updates enters the buffer
+        tight.end_tick()
+        ref.integrate_rays(origin, ends, kind)
+        tight.integrate_rays(origin, ends, kind)
+        n_ref, n = int(ref._tb_meta[0]), int(tight._tb_meta[0])
+        keys = tight._tb_block[:n].astype(np.int64) * 512 + tight._tb_off[:n]
+        assert n == n_ref and len(np.unique(keys)) == n
+    assert len(tight._quiet.changed) > 1  # it grew in the middle of frames

@@ -453,6 +453,11 @@ def apply_voxels_kernel(
             st = stamp[last_b, off]
             if st == frame_id:
                 continue
+            if use_quiet and n_ch >= ch_cap:  # before anything of voxel r is written: it is done again
+                tb_meta[0] = n_tb
+                ch_meta[0] = n_ch
+                counters[phase] += n_done
+                return STATUS_NEED_CHANGED, phase, r
             if st < tick_first:
                 if n_tb >= tb_cap:
                     tb_meta[0] = n_tb
@@ -462,11 +467,6 @@ def apply_voxels_kernel(
                 tb_block[n_tb] = last_b
                 tb_off[n_tb] = off
                 n_tb += 1
-            if use_quiet and n_ch >= ch_cap:
-                tb_meta[0] = n_tb
-                ch_meta[0] = n_ch
-                counters[phase] += n_done
-                return STATUS_NEED_CHANGED, phase, r
             old = logodds[last_b, off]
             v = old + lo
             if phase == 0:
