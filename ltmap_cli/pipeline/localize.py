@@ -106,7 +106,6 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
     state: dict = {"child": None, "laser": None, "odometry": None, "tracker": None, "window": [], "t_first": None,
                    "failed": False, "skipped": 0, "match_s": 0.0}  # fmt: skip
     hold = FrameHold(wait_ns)  # the replay scheduler's rule: scans released once their tf can have come
-    tf_high = None
 
     def place(log_ns: int, item: ScanFrame) -> None:
         laser = norm(item.frame_id)
@@ -171,12 +170,13 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
             break
         if isinstance(item, (TfSample, OdometrySample)):
             if norm(item.parent) != frame:  # a recorded map -> odom is what we estimate
+                for ln, it in hold.outdated_by(tf, item):
+                    place(ln, it)
                 tf.add(item)
-                if not (isinstance(item, TfSample) and item.static):
-                    tf_high = item.stamp_ns if tf_high is None else max(tf_high, item.stamp_ns)
+                hold.took_tf(item)
         elif isinstance(item, ScanFrame):
             hold.push(item.stamp_ns, log_ns, (log_ns, item))
-        for ln, it in hold.release(log_ns, tf_high):
+        for ln, it in hold.release(log_ns):
             place(ln, it)
     for ln, it in hold.flush():
         if state["failed"]:

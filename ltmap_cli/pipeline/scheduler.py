@@ -65,6 +65,20 @@ class FrameHold:
         self.max_pending = max_pending
         self.heap: list = []
         self._seq = 0
+        self.tf_high_ns: int | None = None  # newest header stamp of a dynamic tf / odometry sample
+
+    def outdated_by(self, tf: TfBuffer, sample: TfSample | OdometrySample) -> list:
+        """The frames held that ``sample`` would push out of the tf buffer's window (a sample far
+        newer than them: the next of several logs, recorded long after), removed from the hold:
+        place them before ``sample`` goes into tf."""
+        if not self.heap or (isinstance(sample, TfSample) and sample.static):
+            return []
+        return list(self.flush(before_ns=sample.stamp_ns - tf.window_ns // 2))
+
+    def took_tf(self, sample: TfSample | OdometrySample) -> None:
+        """``sample`` went into tf: a dynamic one moves the header time tf has reached."""
+        if not (isinstance(sample, TfSample) and sample.static):
+            self.tf_high_ns = sample.stamp_ns if self.tf_high_ns is None else max(self.tf_high_ns, sample.stamp_ns)
 
     def __len__(self) -> int:
         return len(self.heap)
@@ -73,8 +87,8 @@ class FrameHold:
         heapq.heappush(self.heap, (stamp_ns, self._seq, log_ns, payload))
         self._seq += 1
 
-    def release(self, log_ns: int, tf_high_ns: int | None) -> Iterator:
-        heap, wait = self.heap, self.wait_ns
+    def release(self, log_ns: int) -> Iterator:
+        heap, wait, tf_high_ns = self.heap, self.wait_ns, self.tf_high_ns
         while heap and (
             (tf_high_ns is not None and heap[0][0] <= tf_high_ns - wait)
             or heap[0][2] <= log_ns - wait
@@ -107,25 +121,20 @@ class Scheduler:
         self.fixed_frame: str | None = None
         self.base_frame: str | None = None
         self.fixed_later: tuple | None = None  # (--fixed-frame, sensor frames) when tf lacked it at the start
-        self.tf_high_ns: int | None = None  # newest header stamp of a dynamic tf / odometry sample
         self.hold = FrameHold(wait_ns, max_pending)
 
     def feed(self, topic: str, log_ns: int, item) -> Iterator[TfSeen | Placed | Skipped]:
         if isinstance(item, (TfSample, OdometrySample)):
-            if len(self.hold) and not (isinstance(item, TfSample) and item.static):
-                # a sample far newer than the frames held (the next of several logs, recorded long
-                # after) would push their tf out of the buffer's window: place them first
-                for t, frame in self.hold.flush(before_ns=item.stamp_ns - self.tf.window_ns // 2):
-                    yield self._place(t, frame)
+            for t, frame in self.hold.outdated_by(self.tf, item):
+                yield self._place(t, frame)
             t0 = time.perf_counter()
             self.tf.add(item)
-            if not (isinstance(item, TfSample) and item.static):
-                self.tf_high_ns = item.stamp_ns if self.tf_high_ns is None else max(self.tf_high_ns, item.stamp_ns)
+            self.hold.took_tf(item)
             self._time("tf", t0)
             yield TfSeen(item)
         else:
             self.hold.push(item.stamp_ns, log_ns, (topic, item))
-        for t, frame in self.hold.release(log_ns, self.tf_high_ns):
+        for t, frame in self.hold.release(log_ns):
             yield self._place(t, frame)
 
     def add_localized(self, sample: TfSample) -> TfSeen:
