@@ -73,11 +73,6 @@ def apply(pose: Pose, pts: np.ndarray) -> np.ndarray:
     return out
 
 
-def pose_from_matrix(T: np.ndarray) -> Pose:
-    """The planar part of a 4x4 transform: x, y and the yaw of its x axis."""
-    return (float(T[0, 3]), float(T[1, 3]), math.atan2(float(T[1, 0]), float(T[0, 0])))
-
-
 def pose_change(a: Pose, b: Pose, at: np.ndarray) -> tuple[float, float]:
     """How far (m) and how much (rad) the point ``at`` (child frame) moves from correction ``a``
     to correction ``b``."""

@@ -25,6 +25,7 @@ from typing import Any
 from .. import __version__
 from ..config import Config, load_config, set_dotted, to_dict, update_from_dict
 from ..errors import ConfigError
+from ..io import safe_yaml
 from .manifest import Manifest, ManifestError, Site
 
 STATIC_DIR = "static"  # OUT/<site>/static/: the site's plan, built once
@@ -124,8 +125,8 @@ def parse_sweep(spec: str) -> tuple[str, list[tuple[str, Any]]]:
     values = []
     for t in texts:
         try:
-            values.append((t, yaml.safe_load(t)))
-        except yaml.YAMLError:
+            values.append((t, safe_yaml.loads(t)))
+        except (yaml.YAMLError, safe_yaml.YamlLimitError):
             raise ConfigError(f"--sweep {spec}: the value {t!r} is not valid YAML") from None
         try:
             set_dotted(Config(), key, values[-1][1])
@@ -205,8 +206,8 @@ def _map_image(yaml_path: Path) -> list[Path]:
     import yaml
 
     try:
-        doc = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        doc = safe_yaml.loads(yaml_path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, safe_yaml.YamlLimitError):
         return []
     image = doc.get("image") if isinstance(doc, dict) else None
     if not isinstance(image, str):

@@ -26,6 +26,7 @@ from typing import Any
 
 from ..config import Config, update_from_dict
 from ..errors import ConfigError
+from ..io import safe_yaml
 
 MANIFEST_KEYS = ("sites", "config")
 SITE_KEYS = ("static", "static_options", "config", "days")
@@ -88,10 +89,10 @@ def load_manifest(path: str | Path) -> Manifest:
             "is it the right file?"
         )
     try:
-        doc = yaml.safe_load(p.read_text(encoding="utf-8"))
+        doc = safe_yaml.loads(p.read_text(encoding="utf-8"))
     except UnicodeDecodeError:
         raise ManifestError(f"manifest {p} is not UTF-8 text; give the fleet's YAML file") from None
-    except yaml.YAMLError as exc:
+    except (yaml.YAMLError, safe_yaml.YamlLimitError) as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", None) or "invalid YAML"
@@ -273,8 +274,8 @@ def _config_entry(value: Any, where: str, base: Path, bad) -> dict:
                 "--dump-config writes one) or a mapping",
             )
         try:
-            value = yaml.safe_load(p.read_text(encoding="utf-8")) or {}
-        except (yaml.YAMLError, UnicodeDecodeError):
+            value = safe_yaml.loads(p.read_text(encoding="utf-8")) or {}
+        except (yaml.YAMLError, safe_yaml.YamlLimitError, UnicodeDecodeError):
             raise bad(where, f"{value}: not valid YAML; fix the syntax") from None
     if not isinstance(value, dict):
         raise bad(

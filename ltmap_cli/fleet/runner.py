@@ -191,14 +191,13 @@ def execute(
     progress: Callable[[Counts], None] | None = None,
     notify: Callable[[str], None] | None = None,
 ) -> tuple[BatchResult, list[Path]]:
-    """The whole batch: OUT locked, leftovers of killed tasks removed, the engine started (unless
+    """The whole batch: OUT locked (each task's folder cleans what a killed run of it left, as
+    every OutputFolder does), the engine started (unless
     the caller did) and closed, every task run, the summary written. Returns the result and the
     summary files."""
     from .summary import write_summary
-    from .tasks import clean_leftovers
 
     with OutputLock(plan.out):
-        clean_leftovers(plan.out)
         started_here = engine.client is None
         try:
             if started_here:
@@ -213,7 +212,6 @@ def execute(
             if started_here:
                 engine.close()
         result.engine = engine.description
-        clean_leftovers(plan.out)  # the staging folders of tasks whose worker died
         return result, write_summary(plan, result, plot=plot)
 
 

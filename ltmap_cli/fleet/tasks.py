@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import socket
 import time
 import traceback
@@ -27,8 +26,6 @@ from .graph import DayTask, StaticTask
 
 DONE, UP_TO_DATE, FAILED = "done", "up to date", "failed"  # a task's result["status"]
 TASK_FILE = "batch_task.json"  # written last, inside the staging folder: the folder is complete
-STAGING_TAG = ".staging-"
-OLD_TAG = ".old-"
 DAY_OUTPUTS = ("report.json", "map.yaml", "long_term.yaml", "snapshots/state_final.npz")
 STATIC_OUTPUTS = ("static.yaml", "static_layer.npz")
 
@@ -116,17 +113,3 @@ def _build_static(task: StaticTask, staging: Path, final: Path) -> None:
     layer, _ = build_from_plan(parse_plan(task.plan, **parse_kw), **build_kw)
     write_map(staging / MAP_YAML, layer.grid, png=True)
     write_static_layer(staging, layer)
-
-
-def clean_leftovers(out: Path) -> int:
-    """Remove the staging and replaced folders of tasks killed in an earlier batch (call with the
-    batch's lock held, before any task runs). Returns how many were removed."""
-    n = 0
-    if not out.is_dir():
-        return 0
-    for level in (out.glob(".*"), out.glob("*/.*"), out.glob("*/*/.*")):
-        for p in level:
-            if p.is_dir() and (STAGING_TAG in p.name or OLD_TAG in p.name):
-                shutil.rmtree(p, ignore_errors=True)
-                n += 1
-    return n

@@ -207,7 +207,7 @@ def _read_image(path: Path, max_cells: int = DEFAULT_MAX_CELLS) -> tuple[np.ndar
     check_regular_file(path, "map image", MapFileError, max_bytes=max_cells * 8 + 2**20)
     try:
         with path.open("rb") as f:
-            head = f.read(4096)
+            head = f.read(1 << 20)  # a PGM header with long comments is still read whole
             if head[:2] in (b"P5", b"P2"):
                 width, height, _maxval, _pos = _pgm_header(head, path)
                 if width * height > max_cells:

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ..errors import MapFileError
-from ..thresholds import FREE_THRESH
+from ..thresholds import FREE_THRESH, OCCUPIED_MIN
 from .atomic import atomic_path
 from .mapfile import GridMap, read_map_yaml
 
@@ -30,7 +30,6 @@ LAYER_FILE = "static_layer.npz"
 MAP_YAML = "static.yaml"
 FORMAT = "ltmap-static-layer"
 VERSION = 1
-OCCUPIED_PERCENT = 65  # map_server's occupied_thresh 0.65, on the 0..100 scale
 FREE_PERCENT = FREE_THRESH * 100  # map_server's free_thresh, as a 0..100 cell value
 
 
@@ -53,7 +52,7 @@ def trinary(data: np.ndarray) -> np.ndarray:
     d = np.asarray(data)
     out = np.full(d.shape, -1, dtype=np.int8)
     out[(d >= 0) & (d <= FREE_PERCENT)] = 0
-    out[d >= OCCUPIED_PERCENT] = 100
+    out[d >= OCCUPIED_MIN] = 100
     return out
 
 

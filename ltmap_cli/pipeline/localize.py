@@ -17,7 +17,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -73,13 +72,12 @@ def _scan_points(item: ScanFrame, T: np.ndarray, lc) -> np.ndarray:
 
 
 def localize_logs(logs, cfg, static_grid: GridMap | None, tf_mounts=()) -> LocalizationResult:
-    """Run the pre-pass over ``logs`` (paths, or an open ``LogSet``). ``cfg``: the run's Config
+    """Run the pre-pass over ``logs`` (paths: read on their own, so the replay's counts stay its
+    own). ``cfg``: the run's Config
     (``replay.localization``, topics, ``tf_wait``); ``static_grid``: the static
     map S (any occupancy ``GridMap``) or None; ``tf_mounts``: the ``--tf`` specs."""
-    if isinstance(logs, (str, Path, list, tuple)):
-        with open_logs(logs, allow_truncated=cfg.replay.allow_truncated, max_message_mb=cfg.replay.max_message_mb) as opened:
-            return _run(opened, cfg, static_grid, tf_mounts)
-    return _run(logs, cfg, static_grid, tf_mounts)
+    with open_logs(logs, allow_truncated=cfg.replay.allow_truncated, max_message_mb=cfg.replay.max_message_mb) as opened:
+        return _run(opened, cfg, static_grid, tf_mounts)
 
 
 def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:

@@ -134,8 +134,6 @@ def occupancy_rgb(data: np.ndarray, occupied_min: int = OCCUPIED_MIN) -> np.ndar
 
 def plot_map(ax, grid, title: str | None = None, scale_bar: bool = True) -> None:
     """Draw a GridMap (free light, unknown grey, occupied dark) in metres."""
-    from ..analysis import OCCUPIED_MIN
-
     draw_rgb(ax, occupancy_rgb(grid.data, OCCUPIED_MIN), grid.resolution, grid.origin)
     _metre_axes(ax)
     if title:
@@ -208,8 +206,6 @@ def plot_path(
     """Draw a map (with the inflated zone of ``blocked`` in light orange when given), a path
     (world x, y, shape (K, 2)) and its start and goal. ``draw_map=False`` adds only the path,
     to overlay several paths on one map."""
-    from ..analysis import OCCUPIED_MIN
-
     if draw_map:
         rgb = occupancy_rgb(grid.data, OCCUPIED_MIN)
         if blocked is not None:
