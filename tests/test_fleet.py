@@ -26,7 +26,7 @@ from ltmap_cli.fleet.manifest import load_manifest  # noqa: E402
 from ltmap_cli.fleet.runner import DONE, Engine, execute  # noqa: E402
 from ltmap_cli.fleet.tasks import TASK_FILE  # noqa: E402
 from ltmap_cli.io.state import read_state  # noqa: E402
-from ltmap_cli.outputs.folder import STAGING
+from ltmap_cli.outputs.folder import ASIDE, STAGING
 
 ROOT = Path(__file__).resolve().parents[1]
 SCEN = ROOT / "sample_logs" / "scenarios"
@@ -337,15 +337,15 @@ def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(t
     assert int(rows[2]["long_term_voxels"]) == int(a2["long_term_voxels"])  # a site's total: its last day
     assert int(rows[2]["frames_used"]) == int(rows[0]["frames_used"]) + int(a2["frames_used"])
     assert (out / "summary.png").stat().st_size > 10_000
-    assert not [p for p in out.rglob("*") if ".staging-" in p.name or ".old-" in p.name]
+    assert not [p for p in out.rglob("*") if STAGING in p.name or ASIDE in p.name]
 
     stamps = {p: p.stat().st_mtime_ns for p in out.rglob(TASK_FILE)}
-    (out / "a" / ".day2.staging-0123456789ab").mkdir()  # left by a batch killed in the middle
+    (out / "a" / f".day2.{STAGING}0123456789ab").mkdir()  # left by a batch killed in the middle
     r = ltmap("batch", manifest, "-o", out, "--workers", "2", "--no-plots")
     assert r.exit_code == 0, r.output
     assert "3 of 3 days done (3 up to date, 0 replayed)" in r.output
     assert {p: p.stat().st_mtime_ns for p in out.rglob(TASK_FILE)} == stamps  # nothing replayed again
-    assert not (out / "a" / ".day2.staging-0123456789ab").exists()
+    assert not (out / "a" / f".day2.{STAGING}0123456789ab").exists()
     assert [x["status"] for x in summary(out)][:2] == ["up to date", "up to date"]
 
     # another parameter: every day is to run again (the slow test below runs them)

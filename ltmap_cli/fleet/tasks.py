@@ -20,7 +20,7 @@ import warnings
 from pathlib import Path
 
 from ..errors import LtmapError, LtmapWarning, OutputError
-from ..outputs.folder import OutputFolder
+from ..outputs.folder import OutputFolder, tidy
 from ..pipeline.replay import Replay, ReplayRequest
 from .graph import DayTask, StaticTask
 
@@ -46,6 +46,7 @@ def run_task(task: StaticTask | DayTask, rerun: bool = False) -> dict:
     where = {"worker": f"{socket.gethostname()}:{os.getpid()}"}
     required = STATIC_OUTPUTS if isinstance(task, StaticTask) else DAY_OUTPUTS
     try:
+        tidy(Path(os.path.abspath(task.out_dir)), task.label)  # what a killed run of this task left beside it
         if not rerun and is_complete(task.out_dir, task.key, required):
             return {"status": UP_TO_DATE, "wall_s": time.perf_counter() - t0, **where}
         _check_ours(task.out_dir)

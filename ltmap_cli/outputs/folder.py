@@ -224,12 +224,7 @@ class OutputFolder:
         p = Path(path)
         label = f"{option} {p}".strip()
         target = Path(os.path.abspath(p))
-        lock = _Lock(target.parent / f".{target.name}.{LOCK}", label, READER)
-        if target.parent.is_dir() and os.access(target.parent, os.W_OK) and lock.try_acquire():
-            try:
-                recover(target)
-            finally:
-                lock.release()
+        tidy(target, label)
         if not target.is_dir():
             raise MapFileError(f"{label}: no such folder; {fix or 'give an ltmap output folder'}")
         manifest = _read_manifest(target)
@@ -285,6 +280,17 @@ def listing(manifest: dict) -> str:
         else:
             top.append(name)
     return ", ".join(top + [f"{d}/ ({n} file{'s' if n != 1 else ''})" for d, n in sorted(folders.items())])
+
+
+def tidy(target: Path, label: str = "") -> None:
+    """``recover`` what a killed run left beside the folder ``target``, when no run holds it now
+    (a reader's check, or a batch finding a day up to date)."""
+    lock = _Lock(target.parent / f".{target.name}.{LOCK}", label or str(target), READER)
+    if target.parent.is_dir() and os.access(target.parent, os.W_OK) and lock.try_acquire():
+        try:
+            recover(target)
+        finally:
+            lock.release()
 
 
 def recover(target: Path) -> None:
