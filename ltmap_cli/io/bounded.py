@@ -46,13 +46,13 @@ def decompress(compression: str, data: bytes, declared: int, limit: int, where: 
             import bz2
 
             d = bz2.BZ2Decompressor()
-            out += d.decompress(data, max_length=declared + 1)
+            out = d.decompress(data, max_length=declared + 1)
             ended = d.eof
         elif comp == "lz4":
             import lz4.frame
 
             d = lz4.frame.LZ4FrameDecompressor()
-            out += d.decompress(data, max_length=declared + 1)
+            out = d.decompress(data, max_length=declared + 1)
             ended = d.eof
         elif comp == "zstd":
             import io
@@ -90,7 +90,7 @@ def decompress(compression: str, data: bytes, declared: int, limit: int, where: 
         raise DecompressError(f"expands to more than the {declared} bytes it declares")
     if len(out) < declared or not ended:
         raise DecompressError(f"expands to {len(out)} bytes, not the {declared} it declares")
-    return bytes(out)
+    return out if isinstance(out, bytes) else bytes(out)  # only the zstd stream collects a bytearray
 
 
 __all__ = ["DEFAULT_MAX_MESSAGE_MB", "TooLargeError", "DecompressError", "decompress", "too_large"]

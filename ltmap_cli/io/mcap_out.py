@@ -52,6 +52,8 @@ from typing import Any
 
 import numpy as np
 
+from .atomic import current_umask
+
 __all__ = ["ReplayMcapWriter", "GRID", "CLOUD", "SCAN", "TF", "yaw_to_quaternion"]
 
 GRID = "nav_msgs/msg/OccupancyGrid"
@@ -95,12 +97,6 @@ def yaw_to_quaternion(yaw: float) -> tuple[float, float, float, float]:
 def _remove(path: str) -> None:
     with contextlib.suppress(FileNotFoundError):
         os.unlink(path)
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 class ReplayMcapWriter:
@@ -272,7 +268,7 @@ class ReplayMcapWriter:
                             self._tf_message(first, list(self._static.values())))
             self._writer.finish()
             self._file.close()
-            os.chmod(self._tmp, 0o666 & ~_umask())  # mkstemp makes 0600
+            os.chmod(self._tmp, 0o666 & ~current_umask())  # mkstemp makes 0600
             os.replace(self._tmp, self.path)
             self._closed = True
             self._cleanup.detach()

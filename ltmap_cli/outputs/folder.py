@@ -50,6 +50,7 @@ from pathlib import Path
 
 from .. import __version__
 from ..errors import MapFileError, OutputError
+from ..io.atomic import current_umask
 
 MANIFEST = "ltmap_manifest.json"
 MANIFEST_MAX_BYTES = 64 * 2**20  # a manifest is a few kB; a bigger file is not one
@@ -112,7 +113,7 @@ class OutputFolder:
             self._check_replaceable()
             _pause("locked")
             self.staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.{STAGING}", dir=parent))
-            os.chmod(self.staging, 0o777 & ~_umask())  # mkdtemp makes 0700; the folder gets normal permissions
+            os.chmod(self.staging, 0o777 & ~current_umask())  # mkdtemp makes 0700; the folder gets normal permissions
         except BaseException:
             self._lock.release()
             raise
@@ -493,12 +494,6 @@ class _Lock:
             os.unlink(self.path)  # while still locked: a waiter that opened it retries (try_acquire)
         os.close(self.fd)
         self.fd = None
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def _pause(point: str) -> None:

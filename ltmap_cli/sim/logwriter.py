@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import InputError
+from ..io.atomic import current_umask
 
 FORMATS = ("mcap", "ros1", "ros2")
 LIBRARY = "ltmap simulate"
@@ -43,12 +44,6 @@ _NUMPY = {
     "float32": np.float32,
     "float64": np.float64,
 }
-
-
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
 
 
 def typestore(ros1: bool):
@@ -164,7 +159,7 @@ class LogWriter:
         try:
             self._close_writer()
             if self.fmt != "ros2":
-                os.chmod(self._tmp, 0o666 & ~_umask())
+                os.chmod(self._tmp, 0o666 & ~current_umask())
                 os.replace(self._tmp, self.path)
         except BaseException:
             self._cleanup()
