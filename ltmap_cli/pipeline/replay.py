@@ -252,8 +252,7 @@ class Replay:
             if not kernels_cached():  # the first run: compile while the log is read and checked
                 self._compile = BackgroundCompile(["base", "outputs"] + (["depth16"] if sel.depths and self.fast else []))
             for s in self.sinks:
-                if isinstance(s, McapSink):
-                    s.start(run, tf)
+                s.start(run, tf)
             self.scheduler = Scheduler(tf, wait_ns=int(cfg.replay.tf_wait * NS), timer=timer,
                                        fixed_frame_request=cfg.replay.fixed_frame,
                                        base_frame=cfg.map.robot.base_frame)  # fmt: skip
@@ -315,13 +314,13 @@ class Replay:
         parts: dict = {"outputs": {}}
         mapping_wall = None
         for s in self.sinks:
-            if isinstance(s, PlotsSink):
-                self._report_progress(None, force=True, phase="writing plots")
+            if s.phase is not None:
+                self._report_progress(None, force=True, phase=s.phase)
             with timer(s.finish_stage):
                 part = s.finish(run)
             parts["outputs"].update(part.pop("outputs", {}))
             parts.update(part)
-            if isinstance(s, SnapshotSink):  # the map is done: mapping speed up to here
+            if s.ends_mapping:  # the map is done: mapping speed up to here
                 mapping_wall = time.perf_counter() - self._t_wall0
         wall = time.perf_counter() - self._t_wall0
         c, total = self.counts, self.log_total_s

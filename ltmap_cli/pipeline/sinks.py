@@ -88,6 +88,11 @@ class Sink:
     frame_stage = "output"
     tick_stage = "output"
     finish_stage = "output"
+    phase: str | None = None  # what the progress bar names while ``finish`` runs, if it takes a while
+    ends_mapping = False  # the map is done when this sink has finished (the mapping speed's end)
+
+    def start(self, run: RunState, tf) -> None:
+        """The log is open (``run.log_start_ns`` known), before its first message."""
 
     def on_tf(self, run: RunState, sample, source: str | None = None) -> None:
         pass
@@ -262,6 +267,7 @@ class SnapshotSink(Sink):
 
     name = "snapshots"
     FOLDER = SNAPSHOTS
+    ends_mapping = True
 
     def __init__(self, cfg):
         self.every_ns = int(round(cfg.replay.snapshot_every * NS))
@@ -429,12 +435,16 @@ class PlotsSink(Sink):
     name = "plots"
     FOLDER = "plots"
 
-    def __init__(self, events: EventsSink, metrics: MetricsSink, planner: PlannerSink | None = None):
-        from ..viz.render3d import start_probe
+    phase = "writing plots"
 
+    def __init__(self, events: EventsSink, metrics: MetricsSink, planner: PlannerSink | None = None):
         self.events = events
         self.metrics = metrics
         self.planner = planner
+
+    def start(self, run, tf) -> None:
+        from ..viz.render3d import start_probe
+
         start_probe()  # whether open3d can render offscreen, found out while the log is mapped
 
     def finish(self, run) -> dict:
