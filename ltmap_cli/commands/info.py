@@ -22,7 +22,7 @@ from ..core.config import MapConfig
 from ..errors import LogReadError, TransformError
 from ..io import decode as dec
 from ..io.logs import IMAGE, TruncatedLogError, open_logs
-from ..io.transforms import TfBuffer, choose_base_frame, choose_fixed_frame
+from ..io.transforms import TfBuffer, choose_base_frame
 
 NS = 1_000_000_000
 OFFSET_SHOWN_S = 1.0  # header stamps this far from record time (either way) are shown
@@ -146,14 +146,12 @@ def gather(
     sensor_frames = {dec.frame_name(m.header.frame_id) for t, m in sensor_first.items()
                      if m is not None and t in sel.sensor_topics} - {""}  # fmt: skip
     try:
-        fixed = buf.fixed_frame(fixed_frame, sensor_frames)
-        if not fixed_frame:  # replay's own choice: from the frames it has at its first sensor frame
-            roots = {f: (buf.root(f) if f in frames else f) for f in sensor_frames}
-            fixed = choose_fixed_frame(early, "", sensor_frames, roots, [f for f in early if f not in buf.edges])
-            if "map" in frames and fixed != "map":
-                warnings.append("tf has map only after the first sensor frames (a localizer that starts later?): "
-                                f"replay maps in {fixed}; with --fixed-frame map it maps in map, skipping the "
-                                "frames before map -> odom exists")
+        # replay's own choice is made from the frames tf has at its first sensor frame
+        fixed = buf.fixed_frame(fixed_frame, sensor_frames, frames=None if fixed_frame else early)
+        if not fixed_frame and "map" in frames and fixed != "map":
+            warnings.append("tf has map only after the first sensor frames (a localizer that starts later?): "
+                            f"replay maps in {fixed}; with --fixed-frame map it maps in map, skipping the "
+                            "frames before map -> odom exists")
     except TransformError as err:
         fixed = None
         if fixed_frame:  # a frame asked for and not in tf: replay stops on it, so does info

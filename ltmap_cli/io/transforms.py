@@ -349,11 +349,13 @@ class TfBuffer:
         except LookupFailure as f:
             return None, f.reason
 
-    def fixed_frame(self, requested: str = "", sensor_frames=()) -> str:
+    def fixed_frame(self, requested: str = "", sensor_frames=(), frames=None) -> str:
         """``requested`` if given (a frame of tf, or one of ``sensor_frames``: the sensors' own
-        frame ids), else ``map`` when tf has it, else ``odom`` (``choose_fixed_frame``)."""
-        frames = self.frames
-        roots = {norm(f): (self.root(f) if norm(f) in frames else norm(f)) for f in sensor_frames}
+        frame ids), else ``map`` when tf has it, else ``odom`` (``choose_fixed_frame``).
+        ``frames``: choose among these (the frames tf had at some moment) instead of all."""
+        known = self.frames
+        frames = known if frames is None else set(frames)
+        roots = {norm(f): (self.root(f) if norm(f) in known else norm(f)) for f in sensor_frames}
         return choose_fixed_frame(frames, requested, sensor_frames, roots, [f for f in frames if f not in self.edges])
 
     def tree_text(self, indent: str = "  ") -> str:
