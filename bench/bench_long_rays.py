@@ -137,12 +137,15 @@ if __name__ == "__main__" and "--generate-only" in sys.argv:
 
 
 CONFIGS = {
-    # name: (fast, threads, quiet_blocks)
-    "exact": (True, True, True),  # the default
-    "noquiet": (True, True, False),  # the default without the quiet blocks (the code before that lever)
-    "serial": (False, False, True),  # the reference path: generic decoding, one thread
-    "before": (True, True, None),  # the code of --before REF, in its default configuration
+    # name: (fast, threads, quiet_blocks, ray_merge: None the default)
+    "default": (True, True, True, None),  # the default configuration
+    "exact": (True, True, True, 0),  # the exact path (every voxel of every ray)
+    "noquiet": (True, True, False, 0),  # exact without the quiet blocks (the code before that lever)
+    "serial": (False, False, True, 0),  # the reference path: generic decoding, one thread, exact
+    "before": (True, True, None, None),  # the code of --before REF, in its default configuration
 }
+for _k in (1, 2, 3, 4, 6, 8, 12, 16):  # merged rays (map.sensor.ray_merge = k)
+    CONFIGS[f"merge{_k}"] = (True, True, True, _k)
 
 
 def child(name: str, log: Path, out: Path) -> None:
@@ -158,12 +161,14 @@ def child(name: str, log: Path, out: Path) -> None:
     from ltmap_cli.core.projection import project
     from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
-    fast, threads, quiet = CONFIGS[name]
+    fast, threads, quiet, merge = CONFIGS[name]
     if quiet is not None:
         LayeredMap.quiet_blocks = quiet
     bench_replay.warm_kernels(Replay, ReplayRequest, Config, out, fast, threads)
     cfg = Config()
     cfg.replay.plots = False
+    if merge is not None:
+        cfg.map.sensor.ray_merge = merge
     run = Replay(cfg, ReplayRequest([log], out / "replay"))
     run.fast, run.threads = fast, threads
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
@@ -173,7 +178,14 @@ def child(name: str, log: Path, out: Path) -> None:
     ru1 = resource.getrusage(resource.RUSAGE_SELF)
     lmap = run.lmap
     p = project(lmap)
+    def packed(ijk):  # (M, 3) voxel keys as one int64 each (21 bits per axis)
+        ijk = ijk + (1 << 20)
+        return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+    o_occ = packed(lmap.O.voxels_where(lmap.O.channel("logodds") > 0))
+    lt = packed(lmap.D.voxels_where(lmap.D.channel("lt") > 0))
     np.savez(out / "bench_state.npz", P=p.data, P_origin=np.asarray(p.origin, dtype=np.float64),
+             P_ij=np.array([p.i0, p.j0]), O_occupied=np.sort(o_occ), LT_keys=np.sort(lt),
              **lmap.state_arrays())  # fmt: skip
     print(json.dumps({
         "name": name, "wall_s": wall, "cpu_s": (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime),
@@ -273,7 +285,31 @@ def same_maps(a_out: str, b_out: str) -> dict:
             and (a[k].shape != b[k].shape or a[k].tobytes() != b[k].tobytes())]  # fmt: skip
     known = a["O_stamp"].shape == b["O_stamp"].shape and np.array_equal(a["O_stamp"] > 0, b["O_stamp"] > 0)
     p_same = a["P"].shape == b["P"].shape and np.array_equal(a["P"], b["P"])
-    return {"differ": diff, "known_same": bool(known), "P_same": bool(p_same)}
+    out = {"differ": diff, "known_same": bool(known), "P_same": bool(p_same)}
+    if "O_occupied" in a.files and "O_occupied" in b.files:
+        out["O_iou"] = iou(a["O_occupied"], b["O_occupied"])
+        out["LT_iou"] = iou(a["LT_keys"], b["LT_keys"])
+        out["P_iou"] = iou(p_cells(a), p_cells(b))
+    return out
+
+
+def iou(a, b) -> float:
+    """Intersection over union of two arrays of keys (1.0 when both are empty)."""
+    import numpy as np
+
+    inter = len(np.intersect1d(a, b))
+    union = len(a) + len(b) - inter
+    return inter / union if union else 1.0
+
+
+def p_cells(state):
+    """P's occupied cells as lattice keys i * 2^32 + j."""
+    import numpy as np
+
+    rows, cols = np.nonzero(state["P"] == 100)
+    i = cols.astype(np.int64) + int(state["P_ij"][0])
+    j = rows.astype(np.int64) + int(state["P_ij"][1])
+    return (i << 32) + (j & 0xFFFFFFFF)
 
 
 def main() -> None:
@@ -339,8 +375,10 @@ def main() -> None:
                 if r is ref:
                     continue
                 c = same_maps(ref["out"], r["out"])
+                ious = (f"; IoU occupied O {c['O_iou']:.4f}, LT {c['LT_iou']:.4f}, P {c['P_iou']:.4f}"
+                        if "O_iou" in c else "")
                 print(f"{s}: {n} vs {ref['name']}: arrays that differ {c['differ'] or 'none'}; "
-                      f"known voxels same {c['known_same']}; P same {c['P_same']}")
+                      f"known voxels same {c['known_same']}; P same {c['P_same']}{ious}")
         for n in names:
             if n != names[0]:
                 a = sum(r["cpu_s"] for r in results[(s, names[0])])
