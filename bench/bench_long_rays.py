@@ -25,7 +25,7 @@ under ``bench/.cache``), interleaved with the current code, ``--repeats`` times 
 that the final maps are the same (O log-odds and stamps, D, bit for bit).
 
 Run: python bench/bench_long_rays.py [--scenes room,hall,house] [--before REF] [--repeats N]
-     [--configs exact,serial]
+     [--configs exact,serial,noquiet,rate10]
 """
 
 from __future__ import annotations
@@ -137,15 +137,13 @@ if __name__ == "__main__" and "--generate-only" in sys.argv:
 
 
 CONFIGS = {
-    # name: (fast, threads, quiet_blocks, ray_merge: None the default)
-    "default": (True, True, True, None),  # the default configuration
-    "exact": (True, True, True, 0),  # the exact path (every voxel of every ray)
-    "noquiet": (True, True, False, 0),  # exact without the quiet blocks (the code before that lever)
-    "serial": (False, False, True, 0),  # the reference path: generic decoding, one thread, exact
-    "before": (True, True, None, None),  # the code of --before REF, in its default configuration
+    # name: (fast, threads, quiet_blocks, settings (--set style) on top of the defaults)
+    "exact": (True, True, True, {}),  # the default
+    "noquiet": (True, True, False, {}),  # the default without the quiet blocks (the code before that lever)
+    "serial": (False, False, True, {}),  # the reference path: generic decoding, one thread
+    "before": (True, True, None, {}),  # the code of --before REF, in its default configuration
+    "rate10": (True, True, True, {"map.sensor.depth_max_rate": 10.0}),  # an approximation: depth at 10 Hz
 }
-for _k in (1, 2, 3, 4, 6, 8, 12, 16):  # merged rays (map.sensor.ray_merge = k)
-    CONFIGS[f"merge{_k}"] = (True, True, True, _k)
 
 
 def child(name: str, log: Path, out: Path) -> None:
@@ -161,14 +159,16 @@ def child(name: str, log: Path, out: Path) -> None:
     from ltmap_cli.core.projection import project
     from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
-    fast, threads, quiet, merge = CONFIGS[name]
+    from ltmap_cli.config import set_dotted
+
+    fast, threads, quiet, settings = CONFIGS[name]
     if quiet is not None:
         LayeredMap.quiet_blocks = quiet
     bench_replay.warm_kernels(Replay, ReplayRequest, Config, out, fast, threads)
     cfg = Config()
     cfg.replay.plots = False
-    if merge is not None:
-        cfg.map.sensor.ray_merge = merge
+    for key, value in settings.items():
+        set_dotted(cfg, key, value)
     run = Replay(cfg, ReplayRequest([log], out / "replay"))
     run.fast, run.threads = fast, threads
     ru0 = resource.getrusage(resource.RUSAGE_SELF)

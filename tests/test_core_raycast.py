@@ -299,7 +299,7 @@ def test_frame_boxes_beyond_a_dense_bitmap_and_voxel_keys_beyond_their_extent():
     ends = np.array([[far, far, far], [-far, -far, -far]])
     meta = np.zeros(12, dtype=np.int64)
     meta[8] = 1 << 21
-    assert _seen_setup(np.zeros(3), ends, np.array([1, 1], dtype=np.int8), 1 / R, np.empty(8, np.uint64), meta, 0)
+    assert _seen_setup(np.zeros(3), ends, np.array([1, 1], dtype=np.int8), 1 / R, np.empty(8, np.uint64), meta)
     assert meta[0] == 0 and (meta[4:7] >= 2 * (KEY_LIMIT - 2) + 9).all()  # dense off; the box recorded
 
     fine = new_map()

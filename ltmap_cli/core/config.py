@@ -30,10 +30,6 @@ class SensorConfig:
     ground_tolerance: float = 0.05  # m; returns with |z| <= this clear but do not mark
     clear_no_return: bool = True  # a LaserScan +inf / > range_max beam clears up to max_range
     dedupe_dense: bool = True  # depth images / clouds: one ray per end voxel (OctoMap's discretize)
-    # depth images / clouds: rays walked back from their ends stop after this many voxels in a row
-    # that earlier rays of the frame walked (0: every voxel of every ray, exact); see
-    # docs/performance.md "Merged rays"
-    ray_merge: int = 2
     # Hz per depth topic (0: every frame): images closer than 0.9 / rate to the last one used are
     # not integrated (nor decoded); an approximation for speed, see docs/performance.md
     depth_max_rate: float = 0.0
@@ -102,8 +98,6 @@ class MapConfig:
             problems.append("map.sensor.clamp_min_logodds < 0 < map.sensor.clamp_max_logodds must hold")
         if not (s.depth_max_rate >= 0):
             problems.append(f"map.sensor.depth_max_rate must be >= 0 (0: every frame), got {s.depth_max_rate}")
-        if not (isinstance(s.ray_merge, int) and 0 <= s.ray_merge <= 64):
-            problems.append(f"map.sensor.ray_merge must be an integer within [0, 64] (0: exact), got {s.ray_merge}")
         if s.depth_max_range <= 0:
             problems.append(f"map.sensor.depth_max_range must be > 0, got {s.depth_max_range}")
         lay = self.layers

@@ -740,12 +740,10 @@ class LayeredMap:
         hits, misses = self.frame_voxels(origin, ends, kind)
         return self.apply_voxels(hits, misses, int((kind > 0).sum()))
 
-    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray, merge: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The voxels these rays update, each once, in update order: (hits, misses), packed keys
         (``core.raycast.frame_voxels``: the DDA). Reads no map state, so it may run in other
-        threads than ``apply_voxels`` (each thread has its own scratch bitmap). ``merge`` > 0:
-        rays are walked back from their ends and stop where they merge into rays walked before
-        (``SensorConfig.ray_merge``, an approximation); 0: every voxel of every ray (exact)."""
+        threads than ``apply_voxels`` (each thread has its own scratch bitmap)."""
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
         scratch = self._scratch
         if not hasattr(scratch, "seen"):
@@ -761,7 +759,7 @@ class LayeredMap:
         checked = False
         while True:
             ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, meta, hits, scratch.misses,
-                              *scratch.sparse, state, int(merge))  # fmt: skip
+                              *scratch.sparse, state)  # fmt: skip
             if state[FV_PHASE] > 0 and not checked:  # the frame's box is known: within the keys' extent?
                 # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
                 box0 = meta[SEEN_I0 : SEEN_K0 + 1]

@@ -107,13 +107,10 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
 KEY_OFFSET = _PACK_OFFSET
 KEY_MASK = (1 << _PACK_BITS) - 1
 SEEN_PAD = 4  # the dense bitmap's box: the ends and the origin, and this many voxels around
-MB_BITS = 2  # merged rays (``_walk_back``): bricks of 4 x 4 x 4 voxels hold the frame's hits
-MB = 1 << MB_BITS
-MB_NEAR = 1  # voxels: a brick this near a hit counts as holding it
 
 
 @njit(cache=True, nogil=True)
-def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta, merge):
+def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
     """Lay this frame's ``seen`` bitmap over the box of voxels its rays can visit (their ends
     and the origin, padded) and clear it. ``seen_meta`` = [dense on, i0, j0, k0, nx, ny, nz,
     words needed, most words, sparse blocks used, sparse generation, what to grow]; the box
@@ -146,10 +143,6 @@ def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta, merge):
         seen_meta[SEEN_WORDS] = 0
         return True
     words = (nx * ny * nz + 63) >> 6
-    if merge > 0:  # then the voxels rays walked, and the bricks the frame's hits are in (``_walk_back``)
-        i0, j0, k0 = lo_i - pad, lo_j - pad, lo_k - pad
-        bricks = _bricks(i0, nx) * _bricks(j0, ny) * _bricks(k0, nz)
-        words = 2 * words + ((bricks + 63) >> 6)
     seen_meta[SEEN_WORDS] = words
     if words > seen.shape[0]:
         return False
@@ -228,27 +221,27 @@ def _seen_bit(seen, bit):
 
 @njit(cache=True, nogil=True)
 def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                 state, merge):  # fmt: skip
+                 state):  # fmt: skip
     """See ``_frame_voxels``: the dense bitmap's loop, or the sparse one's when the frame's box is
     too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not)."""
     if state[FV_PHASE] == 0:  # a new frame
         seen_meta[SEEN_SPARSE_USED] = 0  # a new generation of the sparse bitmap: empty
         seen_meta[SEEN_SPARSE_GEN] += 1
-        if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta, merge):
+        if not _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
             seen_meta[SEEN_GROW] = GROW_DENSE
             return False
         state[FV_PHASE] = 1
     seen_meta[SEEN_GROW] = 0
     if seen_meta[SEEN_DENSE] != 0:
         return _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen,
-                             sp_vals, sp_words, state, merge)  # fmt: skip
+                             sp_vals, sp_words, state)  # fmt: skip
     return _frame_voxels(origin, ends, kind, inv_res, res, None, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals,
-                         sp_words, state, 0)  # fmt: skip
+                         sp_words, state)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
 def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                  state, merge):  # fmt: skip
+                  state):  # fmt: skip
     """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
     packed keys (``grid.pack_block``): hits into ``hits[:state[FV_HITS]]`` (at most one per ray), misses into
     ``misses[:state[FV_MISSES]]``. Returns True when done; False when a buffer must grow first:
@@ -293,13 +286,6 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             if _seen_bit(seen, bit):
                 continue
             seen[bit >> 6] |= np.uint64(1) << np.uint64(bit & 63)
-            if merge > 0:  # the bricks within MB_NEAR voxels of the hit (within the box)
-                for bi in range(max(i - MB_NEAR, si0) >> MB_BITS, (min(i + MB_NEAR, si0 + snx - 1) >> MB_BITS) + 1):
-                    for bj in range(max(j - MB_NEAR, sj0) >> MB_BITS, (min(j + MB_NEAR, sj0 + sny - 1) >> MB_BITS) + 1):
-                        for bk in range(max(k - MB_NEAR, sk0) >> MB_BITS,
-                                        (min(k + MB_NEAR, sk0 + snz - 1) >> MB_BITS) + 1):
-                            bb = _brick_bit(bi, bj, bk, seen_meta)
-                            seen[bb >> 6] |= np.uint64(1) << np.uint64(bb & 63)
         hits[n_hit] = pack_block(i, j, k)
         n_hit += 1
     if state[FV_PHASE] == 1:
@@ -320,14 +306,6 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
         ej = np.int64(np.floor(ey * inv_res))
         ek = np.int64(np.floor(ez * inv_res))
         if ei == ki0 and ej == kj0 and ek == kk0:
-            continue
-        if merge > 0 and seen is not None:  # walked back from the end until it merges (see _walk_back)
-            if n_miss + abs(ei - ki0) + abs(ej - kj0) + abs(ek - kk0) + 5 > cap:
-                seen_meta[SEEN_GROW] = GROW_MISSES
-                state[FV_RAY], state[FV_MISSES] = r, n_miss
-                return False
-            n_miss = _walk_back(ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, res, seen, seen_meta, misses,
-                                n_miss, merge)  # fmt: skip
             continue
         dx, dy, dz = ex - ox, ey - oy, ez - oz
         length = np.sqrt(dx * dx + dy * dy + dz * dz)
@@ -411,160 +389,6 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
                 break
     state[FV_RAY], state[FV_MISSES] = n, n_miss
     return True
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _bricks(i0, n):
-    """Bricks (MB voxels a side, on the lattice's own grid) spanned by voxels i0 .. i0 + n - 1."""
-    return ((i0 + n - 1) >> MB_BITS) - (i0 >> MB_BITS) + 1
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _brick_bit(bi, bj, bk, seen_meta):
-    """Bit of brick (bi, bj, bk) (voxel i >> MB_BITS ...) of the frame's box in the merged rays'
-    third bitmap, after the seen and walked ones; the brick must overlap the box."""
-    i0, j0, k0 = seen_meta[SEEN_I0], seen_meta[SEEN_J0], seen_meta[SEEN_K0]
-    nx, ny, nz = seen_meta[SEEN_NX], seen_meta[SEEN_NY], seen_meta[SEEN_NZ]
-    base = ((nx * ny * nz + 63) >> 6) << 7
-    bny, bnz = _bricks(j0, ny), _bricks(k0, nz)
-    return base + ((bi - (i0 >> MB_BITS)) * bny + (bj - (j0 >> MB_BITS))) * bnz + (bk - (k0 >> MB_BITS))
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _axis_setup(c, s, d, e, size):
-    """DDA start on one axis for a cell ``c`` of ``size``: (t of its next boundary crossing along
-    ``d`` from ``e``, t between crossings)."""
-    if s == 0:
-        return 1e300, 1e300
-    return ((c + 0.5) * size + s * size * 0.5 - e) / d, size / abs(d)
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _walk_back(ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, res, seen, seen_meta, misses, n_miss, merge):
-    """The merged traversal (``map.sensor.ray_merge`` = ``merge`` > 0, dense bitmap only): one ray
-    walked from its end voxel (excluded) back to the origin voxel, each voxel not yet listed in
-    this frame listed as a miss, with the DDA of ``_frame_voxels``, until it has stepped through
-    ``merge`` voxels in a row that earlier rays of the frame walked: it has merged into them, and
-    from there on its voxels are, within a voxel, those they walked on towards the camera. It then
-    goes on brick by brick (4 x 4 x 4 voxels, a DDA four times coarser, listing nothing) and walks
-    voxel by voxel again through every brick that holds one of the frame's hits: next to a
-    surface the voxels that rays graze decide what the surface keeps, so there every voxel of
-    every ray is listed as in the exact traversal. A dense frame's rays converge on the camera, so
-    most of their steps are merged steps through free space. Returns the misses listed."""
-    si0, sj0, sk0 = seen_meta[SEEN_I0], seen_meta[SEEN_J0], seen_meta[SEEN_K0]
-    snx, sny, snz = seen_meta[SEEN_NX], seen_meta[SEEN_NY], seen_meta[SEEN_NZ]
-    usnx, usny, usnz = np.uint64(snx), np.uint64(sny), np.uint64(snz)
-    wbase = ((snx * sny * snz + 63) >> 6) << 6  # the walked bitmap, after the seen one
-    dx, dy, dz = ox - ex, oy - ey, oz - ez
-    length = np.sqrt(dx * dx + dy * dy + dz * dz)
-    dx /= length
-    dy /= length
-    dz /= length
-    si = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
-    sj = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
-    sk = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
-    ci, cj, ck = ei, ej, ek
-    tmx, tdx = _axis_setup(ci, si, dx, ex, res)
-    tmy, tdy = _axis_setup(cj, sj, dy, ey, res)
-    tmz, tdz = _axis_setup(ck, sk, dz, ez, res)
-    bsize = MB * res
-    b0i, b0j, b0k = si0 >> MB_BITS, sj0 >> MB_BITS, sk0 >> MB_BITS  # the box's bricks
-    ubni, ubnj, ubnk = np.uint64(_bricks(si0, snx)), np.uint64(_bricks(sj0, sny)), np.uint64(_bricks(sk0, snz))
-    max_steps = abs(ei - ki0) + abs(ej - kj0) + abs(ek - kk0) + 3
-    steps = 0
-    run = 0
-    while steps < max_steps:
-        steps += 1
-        if tmx < tmy:
-            dim = 0 if tmx < tmz else 2
-        else:
-            dim = 1 if tmy < tmz else 2
-        if dim == 0:
-            t = tmx
-            ci += si
-            tmx += tdx
-        elif dim == 1:
-            t = tmy
-            cj += sj
-            tmy += tdy
-        else:
-            t = tmz
-            ck += sk
-            tmz += tdz
-        if t > length:  # past the origin (rounding)
-            break
-        li, lj, lk = ci - si0, cj - sj0, ck - sk0
-        if (np.uint64(li) < usnx) & (np.uint64(lj) < usny) & (np.uint64(lk) < usnz):
-            lin = (li * sny + lj) * snz + lk
-            wb = wbase + lin
-            if _seen_bit(seen, wb):
-                run += 1
-            else:
-                run = 0
-                seen[wb >> 6] |= np.uint64(1) << np.uint64(wb & 63)
-                if not _seen_bit(seen, lin):
-                    seen[lin >> 6] |= np.uint64(1) << np.uint64(lin & 63)
-                    misses[n_miss] = pack_block(ci, cj, ck)
-                    n_miss += 1
-            if run >= merge and not _seen_bit(seen, _brick_bit(ci >> MB_BITS, cj >> MB_BITS, ck >> MB_BITS, seen_meta)):
-                # merged, outside the bricks of hits: brick by brick to the next such brick
-                run = 0
-                bi, bj, bk = ci >> MB_BITS, cj >> MB_BITS, ck >> MB_BITS
-                bmx, bdx = _axis_setup(bi, si, dx, ex, bsize)
-                bmy, bdy = _axis_setup(bj, sj, dy, ey, bsize)
-                bmz, bdz = _axis_setup(bk, sk, dz, ez, bsize)
-                found = False
-                while True:
-                    if bmx < bmy:
-                        bdim = 0 if bmx < bmz else 2
-                    else:
-                        bdim = 1 if bmy < bmz else 2
-                    if bdim == 0:
-                        t = bmx
-                        bi += si
-                        bmx += bdx
-                    elif bdim == 1:
-                        t = bmy
-                        bj += sj
-                        bmy += bdy
-                    else:
-                        t = bmz
-                        bk += sk
-                        bmz += bdz
-                    if t > length:
-                        break
-                    if (np.uint64(bi - b0i) < ubni) & (np.uint64(bj - b0j) < ubnj) & (np.uint64(bk - b0k) < ubnk):
-                        if _seen_bit(seen, _brick_bit(bi, bj, bk, seen_meta)):  # (a brick of the box)
-                            found = True
-                            break
-                if not found:
-                    break
-                # voxel by voxel again from where the ray enters that brick: the voxel there on
-                # the brick's side (its first one along the axis crossed), the DDA set up anew
-                px, py, pz = ex + dx * t, ey + dy * t, ez + dz * t
-                inv = 1.0 / res
-                ci = min(max(np.int64(np.floor(px * inv)), bi << MB_BITS), (bi << MB_BITS) + MB - 1)
-                cj = min(max(np.int64(np.floor(py * inv)), bj << MB_BITS), (bj << MB_BITS) + MB - 1)
-                ck = min(max(np.int64(np.floor(pz * inv)), bk << MB_BITS), (bk << MB_BITS) + MB - 1)
-                tmx, tdx = _axis_setup(ci, si, dx, ex, res)
-                tmy, tdy = _axis_setup(cj, sj, dy, ey, res)
-                tmz, tdz = _axis_setup(ck, sk, dz, ez, res)
-                steps = abs(ci - ei) + abs(cj - ej) + abs(ck - ek)
-                li, lj, lk = ci - si0, cj - sj0, ck - sk0
-                if (np.uint64(li) < usnx) & (np.uint64(lj) < usny) & (np.uint64(lk) < usnz):
-                    lin = (li * sny + lj) * snz + lk
-                    wb = wbase + lin
-                    seen[wb >> 6] |= np.uint64(1) << np.uint64(wb & 63)
-                    if not _seen_bit(seen, lin):
-                        seen[lin >> 6] |= np.uint64(1) << np.uint64(lin & 63)
-                        misses[n_miss] = pack_block(ci, cj, ck)
-                        n_miss += 1
-        else:
-            misses[n_miss] = pack_block(ci, cj, ck)
-            n_miss += 1
-        if ci == ki0 and cj == kj0 and ck == kk0:
-            break
-    return n_miss
 
 
 @njit(cache=True, nogil=True)

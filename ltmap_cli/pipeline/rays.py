@@ -61,8 +61,7 @@ class FrameCaster:
         else:  # pragma: no cover - the reader yields only these
             raise TypeError(type(frame).__name__)
         t1 = time.perf_counter()
-        merge = 0 if isinstance(frame, ScanFrame) else self.sensor.ray_merge  # dense sensors only
-        hits, misses = self.lmap.frame_voxels(T[:3, 3], ends, kind, merge)
+        hits, misses = self.lmap.frame_voxels(T[:3, 3], ends, kind)
         return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped)
 
     def depth_raw_rays(self, frame: RawDepthFrame, T, robot):
