@@ -52,6 +52,9 @@ from ltmap_cli.fleet.runner import DONE, Engine, execute  # noqa: E402
 from ltmap_cli.outputs.folder import OutputFolder  # noqa: E402
 from ltmap_cli.pipeline.replay import Replay, ReplayRequest  # noqa: E402
 
+# the environment as the user's shell gave it: Dask's nanny writes OMP_NUM_THREADS and the like
+# into this process's environment when it starts a worker, and the later commands must not inherit them
+ENV = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
 SAMPLES = sorted((ROOT / "sample_logs" / "scenarios").glob("0[1-5]*/log.mcap"))
 SITES, DAYS = 4, 3
 
@@ -77,7 +80,6 @@ def cpu_s() -> float:
 
 def by_hand(days: dict[str, list[Path]], out: Path, plots: bool) -> tuple[float, float]:
     """Wall and CPU seconds of the 12 ``ltmap replay`` commands one after another."""
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
     t0, c0 = time.perf_counter(), cpu_s()
     for site, logs in days.items():
         prev = None
@@ -86,7 +88,7 @@ def by_hand(days: dict[str, list[Path]], out: Path, plots: bool) -> tuple[float,
             cmd = [sys.executable, "-m", "ltmap_cli", "replay", str(log), "-o", str(folder), "-q"]
             cmd += ["--resume", str(prev)] if prev else []
             cmd += [] if plots else ["--no-plots"]
-            subprocess.run(cmd, check=True, env=env, stdout=subprocess.DEVNULL)
+            subprocess.run(cmd, check=True, env=ENV, stdout=subprocess.DEVNULL)
             prev = folder
     return time.perf_counter() - t0, cpu_s() - c0
 
