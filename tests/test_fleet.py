@@ -369,6 +369,23 @@ def test_the_local_engine_leaves_malloc_trimming_as_the_environment_has_it():
     assert _trim_threshold() == mine
 
 
+def test_the_local_engine_starts_without_a_warning_when_port_8787_is_taken():
+    import socket
+    import warnings
+
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", 8787))  # Dask's dashboard port: another batch, a notebook's cluster
+            s.listen()
+        except OSError:
+            pass  # taken already: the same case
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with Engine(workers=1):
+                pass
+    assert not [w for w in caught if "already in use" in str(w.message)]
+
+
 def test_a_failing_log_is_retried_once_then_reported_and_the_other_sites_complete(tmp_path):
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)

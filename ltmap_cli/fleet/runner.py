@@ -123,6 +123,9 @@ class Engine:
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=None,
+                    # its scheduler's HTTP server (health and metrics: no dashboard) on a free port,
+                    # not on 8787, taken by another batch or a notebook's cluster (a UserWarning)
+                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                     memory_limit=0,
                     silence_logs=logging.CRITICAL,  # a worker's failure reaches the user as its task's result
                 )
