@@ -355,6 +355,37 @@ def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(t
     assert r.exit_code == 0 and r.output.count("up to date") == 3, r.output
 
 
+def _trim_threshold():
+    return os.environ.get("MALLOC_TRIM_THRESHOLD_")
+
+
+def test_the_local_engine_leaves_malloc_trimming_as_the_environment_has_it():
+    # Dask sets MALLOC_TRIM_THRESHOLD_=65536 in its workers for its memory limit, which the local
+    # engine does not use; with it a replay faults its arrays' pages in again and again
+    # (Dask's nanny also writes it into the driver's own environment before it spawns a worker)
+    mine = _trim_threshold()
+    with Engine(workers=1) as engine:
+        assert set(engine.client.run(_trim_threshold).values()) == {mine}
+    assert _trim_threshold() == mine
+
+
+def test_the_local_engine_starts_without_a_warning_when_port_8787_is_taken():
+    import socket
+    import warnings
+
+    with socket.socket() as s:
+        try:
+            s.bind(("127.0.0.1", 8787))  # Dask's dashboard port: another batch, a notebook's cluster
+            s.listen()
+        except OSError:
+            pass  # taken already: the same case
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with Engine(workers=1):
+                pass
+    assert not [w for w in caught if "already in use" in str(w.message)]
+
+
 def test_a_failing_log_is_retried_once_then_reported_and_the_other_sites_complete(tmp_path):
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)

@@ -30,6 +30,7 @@ LOCK_FILE = ".ltmap-batch.lock"
 POLL_S = 0.5  # the driver's refresh period (progress, completed tasks)
 CONNECT_TIMEOUT_S = 10
 WORKER_WAIT_S = 30  # a cluster without workers: how long to wait for the first before giving up
+TRIM_ENV = "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_"  # None: not set in the workers
 
 # the states of a task, as the progress line and summary.csv show them (and DONE, UP_TO_DATE, FAILED)
 QUEUED, NOT_RUN = "queued", "not run"
@@ -84,6 +85,7 @@ class Engine:
 
     def start(self) -> Engine:
         try:
+            import dask
             from dask.distributed import Client, LocalCluster
         except ImportError:
             raise ConfigError(
@@ -110,15 +112,23 @@ class Engine:
             self.description = f"Dask cluster at {self.address} ({_workers(n)})"
         else:
             # one process per worker (the replay holds the GIL in places), one task at a time each;
-            # no memory limit: a replay's memory is bounded by the map, not by Dask's share
-            self.cluster = LocalCluster(
-                n_workers=self.workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                memory_limit=0,
-                silence_logs=logging.CRITICAL,  # a worker's failure reaches the user as its task's result
-            )
+            # no memory limit: a replay's memory is bounded by the map, not by Dask's share; and
+            # so without the MALLOC_TRIM_THRESHOLD_ Dask sets in its workers for that limit (it
+            # hands freed memory back to the system at once: a replay then faults its arrays' pages
+            # in again and again, 20 times the page faults and 12 % more CPU, bench_fleet.py). A
+            # MALLOC_TRIM_THRESHOLD_ of the user's environment is inherited as it is.
+            with dask.config.set({TRIM_ENV: None}):
+                self.cluster = LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    # its scheduler's HTTP server (health and metrics: no dashboard) on a free port,
+                    # not on 8787, taken by another batch or a notebook's cluster (a UserWarning)
+                    scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                    memory_limit=0,
+                    silence_logs=logging.CRITICAL,  # a worker's failure reaches the user as its task's result
+                )
             self.client = Client(self.cluster)
             self.description = f"local Dask cluster ({_workers(self.workers)})"
         self.startup_s = time.perf_counter() - t0
