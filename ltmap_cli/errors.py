@@ -66,6 +66,13 @@ def output_error(err: OSError, what: str) -> OutputError:
     return OutputError(f"cannot write {what}: {err.strerror or err}; choose another output path (-o)")
 
 
+def first_line(err: BaseException, limit: int | None = None) -> str:
+    """What a library's exception says, as one line of an ltmap message: its first line (cut to
+    ``limit`` characters), or its type's name when it says nothing."""
+    text = str(err).strip()
+    return text.splitlines()[0][:limit] if text else type(err).__name__
+
+
 class TransformError(LtmapError):
     """A transform needed to place sensor frames is missing."""
 

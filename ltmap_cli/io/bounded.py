@@ -8,7 +8,7 @@ that expands to more is corrupt). Real logs stay far below the limit: a 640x480 
 
 from __future__ import annotations
 
-from ..errors import LogReadError
+from ..errors import LogReadError, first_line
 
 DEFAULT_MAX_MESSAGE_MB = 256.0  # replay.max_message_mb: a chunk or a message, uncompressed
 PIECE = 16 * 2**20  # decompressed at most this much at a time
@@ -84,7 +84,7 @@ def decompress(compression: str, data: bytes, declared: int, limit: int, where: 
     except DecompressError:
         raise
     except Exception as err:  # noqa: BLE001 - each library has its own error classes
-        text = str(err).strip().splitlines()[0][:120] if str(err).strip() else type(err).__name__
+        text = first_line(err, 120)
         raise DecompressError(f"its {comp} data is corrupt ({text})") from None
     if len(out) > declared:
         raise DecompressError(f"expands to more than the {declared} bytes it declares")

@@ -58,7 +58,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from ..errors import InputError, LogReadError, LtmapWarning, bounded
+from ..errors import InputError, LogReadError, LtmapWarning, bounded, first_line
 from . import decode as dec
 from . import realsense
 from .bounded import DEFAULT_MAX_MESSAGE_MB
@@ -436,7 +436,7 @@ class LogSet:
         except LogReadError as err:
             raise LogReadError(f"cannot decode the message {where}: {err}") from None
         except Exception as err:  # noqa: BLE001 - deserializer errors on damaged data
-            reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+            reason = first_line(err)
             raise _Undecodable(f"cannot decode the message {where} ({reason}); the message is damaged") from None
 
     def close(self) -> None:

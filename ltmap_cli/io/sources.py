@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from ..errors import InputError, LogReadError, shown
+from ..errors import InputError, LogReadError, first_line, shown
 from .bounded import DEFAULT_MAX_MESSAGE_MB, TooLargeError, decompress
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
@@ -73,7 +73,7 @@ def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -
     if isinstance(err, (struct.error, EOFError)) or type(err).__name__ in ("EndOfFile", "RecordLengthLimitExceeded"):
         reason = "the file ends in the middle of a record"
     else:
-        reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+        reason = first_line(err)
     return f"{path}: reading stopped after {count} messages{where} ({reason})"
 
 
@@ -550,7 +550,7 @@ class McapSource(Source):
             except TooLargeError:
                 raise
             except Exception as err:  # noqa: BLE001 - a damaged chunk: skip it, say which
-                reason = str(err).strip().splitlines()[0] if str(err).strip() else type(err).__name__
+                reason = first_line(err)
                 damaged.append(f"the chunk at byte {ci.chunk_start_offset} (log time "
                                f"{(ci.message_start_time - t0) / 1e9:.1f} to {(ci.message_end_time - t0) / 1e9:.1f} s: "
                                f"its messages are lost; {reason})")  # fmt: skip
@@ -677,7 +677,7 @@ def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
     except FileNotFoundError as err:
         raise InputError(f"ROS 2 bag {path}: {err}; the bag folder is incomplete") from None
     except Exception as err:  # noqa: BLE001 - rosbags and sqlite3 raise several kinds
-        reason = str(err).strip().splitlines()[0][:200] if str(err).strip() else type(err).__name__
+        reason = first_line(err, 200)
         raise LogReadError(f"cannot read ROS 2 bag {path}: {reason}; the bag is corrupt or cut off and "
                            f"nothing in it can be read") from None
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..errors import MapFileError, shown
+from ..errors import MapFileError, first_line, shown
 from .atomic import atomic_path
 
 FORMAT = "ltmap-state"
@@ -62,7 +62,7 @@ def read_state(path: str | Path, max_bytes: int = MAX_STATE_BYTES) -> tuple[dict
     except MapFileError:
         raise
     except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, MemoryError) as exc:
-        text = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else type(exc).__name__
+        text = first_line(exc, 120)
         raise _fault(p, f"not a readable ltmap state file ({text})") from None
     try:
         header = arrays.pop("__header__")
