@@ -7,13 +7,18 @@ from pathlib import Path
 
 import click
 
+from ..errors import OutputError
+from ..outputs.folder import output_target
+
 
 def nonempty_output(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
-    """Click callback of ``-o``: an empty path ('' becomes '.': the current folder) is refused,
-    not written into."""
-    if value is not None and str(value).strip() in ("", "."):
-        raise click.BadParameter("-o '' or -o . names the current folder, which the output would replace; give "
-                                 "an output path, e.g. -o out")
+    """Click callback of ``-o``: a path no run may replace (the current folder, one above it, '')
+    is refused as the command line is read, with OutputFolder's own check, not after the work."""
+    if value is not None:
+        try:
+            output_target(value, "-o")
+        except OutputError as e:
+            raise click.BadParameter(str(e)) from None
     return value
 
 

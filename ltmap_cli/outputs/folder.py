@@ -86,7 +86,7 @@ class OutputFolder:
         self.staging: Path | None = None
         self.manifest: dict | None = None
         self._lock: _Lock | None = None
-        self._target = _target(self.final, option)
+        self._target = output_target(self.final, option)
 
     # -- lifecycle ------------------------------------------------------------------------------
     def __enter__(self) -> OutputFolder:
@@ -320,7 +320,7 @@ def recover(target: Path) -> None:
 
 
 # -- internals --------------------------------------------------------------------------------
-def _target(path: Path, option: str) -> Path:
+def output_target(path: Path, option: str) -> Path:
     """The folder the swap replaces: ``path`` made absolute, a symbolic link followed (the
     link's target is replaced, the link kept). Refuses the current folder or one above it, and /."""
     label = f"{option} {path}".strip()
