@@ -74,6 +74,13 @@ def cell_to_world(grid: GridMap, row, col):
     return x, y
 
 
+def occupied_centres(grid: GridMap) -> np.ndarray:
+    """World (x, y) centres (M, 2) of the grid's occupied cells (``occupied_mask``)."""
+    rows, cols = np.nonzero(occupied_mask(grid))
+    x, y = cell_to_world(grid, rows, cols)
+    return np.stack([np.atleast_1d(x), np.atleast_1d(y)], axis=1).astype(np.float64)
+
+
 def in_bounds(grid: GridMap, row, col):
     """True where (row, col) is a cell of the grid."""
     return (

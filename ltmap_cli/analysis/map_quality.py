@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..io.mapfile import GridMap
-from . import cell_to_world, in_bounds, occupied_mask, world_to_cell
+from . import in_bounds, occupied_centres, occupied_mask, world_to_cell
 
 
 def dilate(mask: np.ndarray, n: int) -> np.ndarray:
@@ -35,9 +35,7 @@ def fraction_on_walls(xy: np.ndarray, walls: GridMap, cells: int = 2) -> float:
 
 def wall_distance(xy: np.ndarray, walls: GridMap) -> np.ndarray:
     """Distance (m) of each point (N, 2) to the centre of the nearest occupied cell of ``walls``."""
-    rows, cols = np.nonzero(occupied_mask(walls))
-    wx, wy = cell_to_world(walls, rows, cols)
-    w = np.stack([np.atleast_1d(wx), np.atleast_1d(wy)], axis=1)
+    w = occupied_centres(walls)
     return np.array([float(np.min(np.hypot(w[:, 0] - p[0], w[:, 1] - p[1]))) for p in xy])
 
 

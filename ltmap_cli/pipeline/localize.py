@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..analysis import occupied_centres
 from ..analysis.localization import Alignment, SurfaceField, Tracker, apply, downsample, global_align
 from ..core.sensors import scan_to_points
 from ..io.frames import OdometrySample, ScanFrame, TfSample
@@ -51,15 +52,6 @@ class LocalizationResult:
             sc = "" if not math.isfinite(score) else f"{score:.3f}"
             lines.append(f"{stamp},{t_s:.3f},{x:.4f},{y:.4f},{yaw:.5f},{rx:.3f},{ry:.3f},{sc},{int(ok)}")
         return "\n".join(lines) + "\n"
-
-
-def _walls(grid: GridMap) -> np.ndarray:
-    """Centres (M, 2) of a map's occupied cells (value >= 65), in its frame."""
-    from ..analysis import cell_to_world, occupied_mask
-
-    rows, cols = np.nonzero(occupied_mask(grid))
-    x, y = cell_to_world(grid, rows, cols)
-    return np.stack([np.atleast_1d(x), np.atleast_1d(y)], axis=1).astype(np.float64)
 
 
 def _scan_points(item: ScanFrame, T: np.ndarray, lc) -> np.ndarray:
@@ -95,7 +87,7 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
     wait_ns = int(cfg.replay.tf_wait * NS)
     start_ns = logs.start_ns or 0
 
-    walls = _walls(static_grid) if static_grid is not None else None
+    walls = occupied_centres(static_grid) if static_grid is not None else None
     static_field = None
     if walls is not None and len(walls):
         static_field = SurfaceField.from_points(walls, lc.resolution, lc.surface_distance, min_hits=lc.map_min_hits)

@@ -576,16 +576,15 @@ def map_view(grid, events: list[dict] = (), robot_xy=None, path_xy=None, margin:
     cells, the events, the robot's trajectory and the path, with ``margin`` around, within the
     grid (a laser's no-return beams can clear free space far beyond the rooms). The whole grid
     when there is nothing of these."""
-    from ..analysis import cell_to_world, occupied_mask
+    from ..analysis import occupied_centres
 
     ox, oy = float(grid.origin[0]), float(grid.origin[1])
     res = float(grid.resolution)
     full = (ox, ox + grid.width * res, oy, oy + grid.height * res)
     pts = []
-    rows, cols = np.nonzero(occupied_mask(grid))
-    if len(rows):
-        x, y = cell_to_world(grid, rows, cols)
-        pts.append(np.stack([np.atleast_1d(x), np.atleast_1d(y)], axis=1))
+    walls = occupied_centres(grid)
+    if len(walls):
+        pts.append(walls)
     for e in events:
         pts.append(np.array([e["extent_min"][:2], e["extent_max"][:2]], dtype=float))
     for xy in (robot_xy, path_xy):
