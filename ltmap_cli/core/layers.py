@@ -693,6 +693,9 @@ class LayeredMap:
         it may run in another thread than ``integrate_rays``."""
         if not depth.dtype.isnative:
             depth = depth.astype(depth.dtype.newbyteorder("="))
+        if depth.flags.writeable:  # the kernel sees read-only pixels (as a log's buffer gives them) either
+            depth = depth.view()  # way: one compiled specialization, not one per writeable flag
+            depth.flags.writeable = False
         if depth.dtype == np.uint16:
             unit_mm = True
         elif depth.dtype == np.float32:
