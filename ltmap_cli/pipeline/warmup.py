@@ -3,8 +3,9 @@ minute of CPU in one process), then loads them from its disk cache (well under a
 
 Compiling is split into groups that share almost no kernel: ``rays`` (the rays of points and
 scans, the voxels they pass, their updates of O), ``maps`` (the tick rules, the projection, the
-virtual scan, the snapshots' tree walk, the events' grouping) and one per depth image encoding
-(``depth16``: 16UC1/mono16, ``depth32``: 32FC1); a run warms only the groups it uses. On a cold
+snapshots' tree walk, the events' grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
+``planner`` (``--plan-goal``) and one per depth image encoding (``depth16``: 16UC1/mono16,
+``depth32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
 cache ``BackgroundCompile`` compiles the groups a run will need in child processes, one per
 group, in parallel with each other and with opening and checking the log, so that the first run
 on two cores waits for about half the compiling instead of all of it, and a log that fails its
@@ -50,19 +51,32 @@ def warm_rays(cfg: MapConfig) -> None:
 
 
 def warm_maps(cfg: MapConfig) -> None:
-    """What works on the map between and after frames: the tick rules, P and the virtual scan,
-    the .ot snapshot's tree walk and the events' grouping (D seeded, so the map has blocks,
-    without the ``rays`` group's kernels)."""
+    """What works on the map between and after frames: the tick rules, P, the .ot snapshot's
+    tree walk and the events' grouping (D seeded, so the map has blocks, without the ``rays``
+    group's kernels)."""
     from ..analysis.events import _group
     from ..outputs.snapshots import snapshot_ot_bytes
 
     m = LayeredMap(cfg)
     m.seed_long_term(np.array([[1, 1, 1], [2, 1, 1]], dtype=np.int64), 1.0)
     m.end_tick()
-    p = project(m)
-    virtual_scan(m, p, (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)
+    project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
+
+
+def warm_fused_scan(cfg: MapConfig) -> None:
+    """The virtual scan of /scan_fused (``--mcap``), over an empty map's P (made without
+    kernels)."""
+    m = LayeredMap(cfg)
+    virtual_scan(m, project(m), (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)
+
+
+def warm_planner(cfg: MapConfig) -> None:
+    """The planner (``--plan-goal``): the robot radius's inflation and the search."""
+    from ..analysis.planner import inflate, plan_path
+
+    plan_path(inflate(np.zeros((4, 4), dtype=bool), 1.5), (0, 0), (3, 3))
 
 
 def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
@@ -76,9 +90,22 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
     m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
 
 
-GROUPS = {"rays": warm_rays, "maps": warm_maps, "depth16": lambda c: warm_depth(c, np.uint16),
+GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
+          "depth16": lambda c: warm_depth(c, np.uint16),
           "depth32": lambda c: warm_depth(c, np.float32)}  # fmt: skip
-MAP_GROUPS = ("rays", "maps")  # what every run calls (a depth group besides, for raw depth images)
+
+
+def replay_groups(replay, raw_depth: bool = False) -> list[str]:
+    """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays`` and
+    ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
+    ``raw_depth`` (raw depth images) ``depth16``, the encoding of most cameras (a 32FC1 log warms
+    ``depth32`` at its first frame)."""
+    groups = ["rays", "maps"]
+    if replay.mcap_out:
+        groups.append("fused_scan")
+    if replay.plan_goal:
+        groups.append("planner")
+    return groups + (["depth16"] if raw_depth else [])
 
 
 def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
