@@ -1,4 +1,4 @@
-"""Voxel PLY snapshots: written with open3d, read back with open3d."""
+"""Voxel PLY snapshots: written with numpy as open3d writes them, read back with open3d."""
 
 from __future__ import annotations
 
@@ -65,3 +65,21 @@ def test_bad_input(tmp_path):
     with pytest.raises(ValueError, match="color_by must be one of height, value"):
         write_voxels_ply(tmp_path / "a.ply", np.zeros((1, 3)), None, 0.05, color_by="rainbow")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_same_vertices_as_open3d_writes(tmp_path):
+    # the file open3d's writer makes, but for the header's comment (colours rounded as it rounds
+    # them: halves away from zero)
+    from ltmap_cli.io.ply import voxel_colors
+
+    rng = np.random.default_rng(3)
+    centers = np.round(rng.normal(size=(500, 3)) * 40) * 0.05 + 0.025
+    values = rng.random(500)
+    values[:2] = [0.0, 1.0]
+    for color_by in ("height", "value"):
+        write_voxels_ply(tmp_path / "ours.ply", centers, values, 0.05, color_by=color_by)
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(centers))
+        cloud.colors = o3d.utility.Vector3dVector(voxel_colors(centers, values, 0.05, color_by))
+        assert o3d.io.write_point_cloud(str(tmp_path / "o3d.ply"), cloud, write_ascii=False, compressed=False)
+        ours, theirs = (tmp_path / "ours.ply").read_bytes(), (tmp_path / "o3d.ply").read_bytes()
+        assert ours.replace(b"comment Created by ltmap\n", b"comment Created by Open3D\n") == theirs

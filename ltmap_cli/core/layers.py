@@ -425,20 +425,14 @@ def _queue_obstacles(tb_block, tb_off, n_tb, o_coords, d_keys, d_vals, last_obs,
 
 
 @njit(cache=True)
-def _forget_due(fq_vid, fq_due, fq_meta, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo,
-                k_hi, hist_i, hist_v, hist_meta):  # fmt: skip
-    """``_forget_kernel``'s rule for the queued voxels due by this tick, in the same (block,
-    offset) order, so with the same history records: a voxel with ST > 0 was seen as an obstacle
-    at ``last_obs`` and queued then, due at ``last_obs + forget_ticks``, the first tick the rule
-    can apply to it. Cost per tick: the voxels due, not the map. Returns the number forgotten, or
-    -1 when the history buffer must grow first (call again)."""
-    head, tail = fq_meta[0], fq_meta[1]
-    end = head
-    while end < tail and fq_due[end] <= tick_index:
-        end += 1
-    if end == head:
-        return 0
-    vids = np.unique(fq_vid[head:end])  # sorted: block, then offset, as the full scan visits them
+def _forget_due(vids, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi, hist_i, hist_v,
+                hist_meta):  # fmt: skip
+    """``_forget_kernel``'s rule for the queued voxels due by this tick (``vids``: their ids,
+    sorted and unique, ``LayeredMap._due_voxels``), in the same (block, offset) order, so with
+    the same history records: a voxel with ST > 0 was seen as an obstacle at ``last_obs`` and
+    queued then, due at ``last_obs + forget_ticks``, the first tick the rule can apply to it. Cost
+    per tick: the voxels due, not the map. Returns the number forgotten, or -1 when the history
+    buffer must grow first (call again)."""
     n = 0
     for q in range(vids.shape[0]):
         vid = vids[q]
@@ -453,7 +447,6 @@ def _forget_due(fq_vid, fq_due, fq_meta, d_coords, st, lt, last_obs, obst_since,
             st[b, o] = 0.0
             obst_since[b, o] = -1
             n += 1
-    fq_meta[0] = end
     return n
 
 
@@ -693,6 +686,9 @@ class LayeredMap:
         it may run in another thread than ``integrate_rays``."""
         if not depth.dtype.isnative:
             depth = depth.astype(depth.dtype.newbyteorder("="))
+        if depth.flags.writeable:  # the kernel sees read-only pixels (as a log's buffer gives them) either
+            depth = depth.view()  # way: one compiled specialization, not one per writeable flag
+            depth.flags.writeable = False
         if depth.dtype == np.uint16:
             unit_mm = True
         elif depth.dtype == np.float32:
@@ -884,15 +880,16 @@ class LayeredMap:
             self._fq_meta,
         ):  # fmt: skip
             self._grow_forget_queue()
+        vids, end = self._due_voxels()
         while True:
             forgotten = _forget_due(
-                self._fq_vid, self._fq_due, self._fq_meta, d.block_coords, d.data["st"], d.data["lt"],
-                d.data["last_obs"], d.data["obst_since"], self.tick_index, forget_ticks, k_lo, k_hi,
-                ev.hist_i, ev.hist_v, ev.hist_meta,
+                vids, d.block_coords, d.data["st"], d.data["lt"], d.data["last_obs"], d.data["obst_since"],
+                self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v, ev.hist_meta,
             )  # fmt: skip
             if forgotten >= 0:
                 break
             ev.grow()
+        self._fq_meta[0] = end
         result = TickResult(
             tick_index=self.tick_index,
             observed=n_tb,
@@ -907,6 +904,15 @@ class LayeredMap:
         self._tb_meta[0] = 0
         self._tick_first = self.frame_id + 1
         return result
+
+    def _due_voxels(self) -> tuple[np.ndarray, int]:
+        """The forget queue's voxels due by this tick: their ids, sorted and unique (block, then
+        offset, as the full scan visits them), and the queue index after them. (numpy's sort
+        here, not in the kernel: numba compiles np.unique's sorts in about 2 s.)"""
+        head, tail = int(self._fq_meta[0]), int(self._fq_meta[1])
+        late = self._fq_due[head:tail] > self.tick_index  # the queue is in due order: up to the first not due
+        end = head + (int(late.argmax()) if late.any() else tail - head)
+        return np.unique(self._fq_vid[head:end]), end
 
     def _grow_forget_queue(self) -> None:
         """Drop the queue's consumed head, and double it when still more than half full."""

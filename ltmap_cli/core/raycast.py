@@ -674,8 +674,9 @@ def _depth_rays_pass(
                 for d in range(1, min(u, 3) + 1):
                     rep = rep | (ok[u - d] & (key[u - d] == kk))
                 look[u] = ok[u] & ~rep
-        else:
-            look[:] = ok
+        else:  # (a loop: a slice copy would compile numba's shape-mismatch error path, 2 s)
+            for u in range(w):
+                look[u] = ok[u]
         n_look = 0
         for u in range(w):  # the pixels left, in order (no branch)
             idx[n_look] = u
@@ -727,7 +728,7 @@ def depth_image_rays(
     than it holds is done again with a bigger set. A pixel that ends in the same voxel as the
     pixel before it skips the lookup.
     """
-    cap = 1 << 15
+    cap = np.int64(1 << 15)  # not a literal: numba would compile _depth_rays_pass for Literal[int](32768) too
     while True:
         ends, kind, ok = _depth_rays_pass(depth, unit_mm, fx, fy, cx, cy, T, max_range, ground_tol, fp_inv, fp_min,
                                           fp_max, use_fp, dedupe, inv_res, cap)  # fmt: skip

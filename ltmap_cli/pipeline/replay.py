@@ -23,7 +23,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.planner import plan_path
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, LtmapWarning, MapFileError, TransformError
@@ -57,7 +56,7 @@ from .sinks import (
     inputs_comment,
 )
 from .timing import StageTimer
-from .warmup import BackgroundCompile, kernels_cached, warm_depth, warm_up
+from .warmup import BackgroundCompile, kernels_cached, replay_groups, warm_depth, warm_up
 
 NS = 1_000_000_000
 
@@ -250,7 +249,7 @@ class Replay:
             run.log_start_ns = logs.start_ns
             self.log_total_s = max((logs.end_ns - logs.start_ns) / NS, 1e-9)
             if not kernels_cached():  # the first run: compile while the log is read and checked
-                self._compile = BackgroundCompile(["base", "outputs"] + (["depth16"] if sel.depths and self.fast else []))
+                self._compile = BackgroundCompile(replay_groups(cfg.replay, bool(sel.depths) and self.fast))
             for s in self.sinks:
                 s.start(run, tf)
             self.scheduler = Scheduler(tf, wait_ns=int(cfg.replay.tf_wait * NS), timer=timer,
@@ -417,9 +416,7 @@ class Replay:
             if self._compile is not None:
                 self._report_progress(None, force=True, phase="compiling kernels (first run only)")
                 self._compile.wait()
-            warm_up(self.cfg.map, ["base", "outputs"])
-            if self.cfg.replay.plan_goal:
-                plan_path(np.zeros((4, 4), dtype=bool), (0, 0), (3, 3))
+            warm_up(self.cfg.map, replay_groups(self.cfg.replay))  # (the depth kernels: at their first frame)
 
     def _integrate(self, placed: Placed, cast: CastFrame, wait_s: float | None) -> None:
         run, timer, c = self.state, self.timer, self.counts

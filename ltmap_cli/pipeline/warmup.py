@@ -1,14 +1,18 @@
 """The kernels' first calls, before the first frame: numba compiles them after an install (a
 minute of CPU in one process), then loads them from its disk cache (well under a second).
 
-Compiling is split into groups: ``base`` (rays of points and scans, voxels, the tick rules, the
-projection, the virtual scan) and one per depth image encoding (``depth16``: 16UC1/mono16,
-``depth32``: 32FC1), and a run warms only the groups it uses. On a cold cache
-``BackgroundCompile`` compiles the groups a run will need in child processes, one per group, in
-parallel with each other and with opening and checking the log, so that the first run on two
-cores waits for the slowest group instead of the sum, and a log that fails its checks (a missing
-transform) fails before any compiling is waited for. The children write numba's cache; the replay
-then loads the kernels from it.
+Compiling is split into groups that share almost no kernel: ``rays`` (the rays of points and
+scans, the voxels they pass, their updates of O), ``maps`` (the tick rules, the projection, the
+snapshots' tree walk, the events' grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
+``planner`` (``--plan-goal``) and one per depth image encoding (``depth16``: 16UC1/mono16,
+``depth32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
+cache ``BackgroundCompile`` compiles the groups a run will need in child processes, one per
+group, in parallel with each other and with opening and checking the log, so that the first run
+on two cores waits for about half the compiling instead of all of it, and a log that fails its
+checks (a missing transform) fails before any compiling is waited for. The children write
+numba's cache; the replay then loads the kernels from it. A kernel that two groups call is
+compiled in both children, so each group makes its map without the others' kernels (``maps``
+seeds D instead of casting rays); only the grid's block lookups (0.3 s) are in both.
 """
 
 from __future__ import annotations
@@ -23,6 +27,7 @@ import numpy as np
 from ..core.config import MapConfig
 from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
+from ..core.sensors import transform_points
 
 CORE = Path(__file__).resolve().parent.parent / "core"
 
@@ -33,43 +38,74 @@ def _pose() -> np.ndarray:
     return T
 
 
-def warm_base(cfg: MapConfig) -> None:
+def warm_rays(cfg: MapConfig) -> None:
+    """The frame path: a scan's points to the fixed frame, rays with and without a footprint,
+    the voxels they pass and their updates of O, and O's block pool grown (its hash table
+    rebuilt)."""
     m = LayeredMap(cfg)
     T = _pose()
-    m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5], [1.0, -0.1, 0.02]], [True, False], max_range=4.0, robot_pose=T)
+    scan = transform_points(T, np.array([[1.0, 0.1, -0.5], [1.0, -0.1, -0.98]]))  # to the fixed frame
+    m.integrate(T[:3, 3], scan, [True, False], max_range=4.0, robot_pose=T)
     m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5]], None, max_range=4.0, robot_pose=None, dedupe=False)
+    m.O.grow()
+
+
+def warm_maps(cfg: MapConfig) -> None:
+    """What works on the map between and after frames: the tick rules, P, the .ot snapshot's
+    tree walk and the events' grouping (D seeded, so the map has blocks, without the ``rays``
+    group's kernels)."""
+    from ..analysis.events import _group
+    from ..outputs.snapshots import snapshot_ot_bytes
+
+    m = LayeredMap(cfg)
+    m.seed_long_term(np.array([[1, 1, 1], [2, 1, 1]], dtype=np.int64), 1.0)
     m.end_tick()
-    p = project(m)
-    virtual_scan(m, p, (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)
+    project(m)
+    snapshot_ot_bytes(m)
+    _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
+
+
+def warm_fused_scan(cfg: MapConfig) -> None:
+    """The virtual scan of /scan_fused (``--mcap``), over an empty map's P (made without
+    kernels)."""
+    m = LayeredMap(cfg)
+    virtual_scan(m, project(m), (0.0, 0.0, 0.0), np.zeros(1), 0.05, 4.0, o_since_frame=1)
+
+
+def warm_planner(cfg: MapConfig) -> None:
+    """The planner (``--plan-goal``): the robot radius's inflation and the search."""
+    from ..analysis.planner import inflate, plan_path
+
+    plan_path(inflate(np.zeros((4, 4), dtype=bool), 1.5), (0, 0), (3, 3))
 
 
 def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
     """The fused depth kernel for raw pixels of ``dtype``, C-contiguous or a strided view (numba
     compiles one specialization per dtype and layout)."""
     m = LayeredMap(cfg)
-    T = _pose()
     depth = np.full((2, 4), 1000 if np.dtype(dtype).kind == "u" else 1.0, dtype=dtype)
     depth = depth[:, :2] if contiguous else depth[:, ::2]
     if contiguous:
         depth = np.ascontiguousarray(depth)
-    ends, kind = m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T)
-    m.integrate_rays(T[:3, 3], ends, kind)
+    m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
 
 
-def warm_outputs(cfg: MapConfig) -> None:
-    """The kernels of the outputs: the .ot snapshot's tree walk and the events' grouping."""
-    from ..analysis.events import _group
-    from ..outputs.snapshots import snapshot_ot_bytes
-
-    m = LayeredMap(cfg)
-    m.seed_long_term(np.array([[1, 1, 1], [2, 1, 1]], dtype=np.int64), 1.0)
-    m.integrate([0.0, 0.0, 0.5], [[1.0, 0.1, 0.5]], None, max_range=4.0, robot_pose=None, dedupe=False)
-    snapshot_ot_bytes(m)
-    _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
-
-
-GROUPS = {"base": warm_base, "outputs": warm_outputs, "depth16": lambda c: warm_depth(c, np.uint16),
+GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
+          "depth16": lambda c: warm_depth(c, np.uint16),
           "depth32": lambda c: warm_depth(c, np.float32)}  # fmt: skip
+
+
+def replay_groups(replay, raw_depth: bool = False) -> list[str]:
+    """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays`` and
+    ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
+    ``raw_depth`` (raw depth images) ``depth16``, the encoding of most cameras (a 32FC1 log warms
+    ``depth32`` at its first frame)."""
+    groups = ["rays", "maps"]
+    if replay.mcap_out:
+        groups.append("fused_scan")
+    if replay.plan_goal:
+        groups.append("planner")
+    return groups + (["depth16"] if raw_depth else [])
 
 
 def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
