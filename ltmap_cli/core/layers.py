@@ -910,8 +910,8 @@ class LayeredMap:
         offset, as the full scan visits them), and the queue index after them. (numpy's sort
         here, not in the kernel: numba compiles np.unique's sorts in about 2 s.)"""
         head, tail = int(self._fq_meta[0]), int(self._fq_meta[1])
-        late = self._fq_due[head:tail] > self.tick_index  # the queue is in due order: up to the first not due
-        end = head + (int(late.argmax()) if late.any() else tail - head)
+        # the queue is in due order: up to the first not due (a binary search, not a pass over the queue)
+        end = head + int(np.searchsorted(self._fq_due[head:tail], np.int32(self.tick_index), side="right"))
         return np.unique(self._fq_vid[head:end]), end
 
     def _grow_forget_queue(self) -> None:
