@@ -46,12 +46,14 @@ def new_figure(width_cells: int = 800, height_cells: int = 600, legend: bool = F
     return fig, ax
 
 
-def save_png(fig, path) -> None:
-    """Write ``fig`` as PNG to ``path`` atomically (temporary file, then rename)."""
+def save_png(fig, path, crop: bool = True) -> None:
+    """Write ``fig`` as PNG to ``path`` atomically (temporary file, then rename), cropped to what
+    it draws (``bbox_inches="tight"``, which draws the figure twice), or with ``crop=False`` as
+    it is (a figure whose margins are set to fit it)."""
     from ..io.atomic import atomic_path
 
     with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", bbox_inches="tight")
+        fig.savefig(tmp, format="png", bbox_inches="tight" if crop else None)
 
 
 def _nice_length(span: float) -> float:
@@ -803,7 +805,16 @@ def write_layer_history(
     ncols = min(3, max(n, 1))
     nrows = max(1, math.ceil(n / ncols))
     width = max(5.4 * ncols, 8.0)
-    fig, axes = new_plot_figure(width, 3.4 * nrows + 0.9, nrows, ncols, layout="constrained")
+    height = 3.4 * nrows + 0.9
+    fig, axes = new_plot_figure(width, height, nrows, ncols)
+    # margins in inches, set once (a layout engine would measure every text at every draw: half
+    # of this figure's time): the legend and heading on top, each axes' title above it, its
+    # labels below and left
+    top, bottom, left, right, row_gap, col_gap = 1.05, 0.5, 0.65, 0.15, 0.8, 0.75
+    ax_h = (height - top - bottom - row_gap * (nrows - 1)) / nrows
+    ax_w = (width - left - right - col_gap * (ncols - 1)) / ncols
+    fig.subplots_adjust(left=left / width, right=1 - right / width, bottom=bottom / height, top=1 - top / height,
+                        hspace=row_gap / ax_h, wspace=col_gap / ax_w)  # fmt: skip
     axes = np.atleast_1d(axes).ravel()
     if not n:
         plot_layer_history(
@@ -841,7 +852,8 @@ def write_layer_history(
         fig.legend(
             handles,
             labels,
-            loc="outside upper center",
+            loc="upper center",
+            bbox_to_anchor=(0.5, 1.0 - 0.03 / height),
             ncol=min(len(labels), 5 if width > 12 else 3),
             fontsize="small",
             frameon=False,
@@ -850,7 +862,7 @@ def write_layer_history(
         )
     else:
         fig.suptitle(heading, fontsize="large")
-    save_png(fig, path)
+    save_png(fig, path, crop=False)
 
 
 def write_summary_plots(
