@@ -13,6 +13,7 @@ static plan). A day folder whose ``batch_task.json`` holds the same key is up to
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import itertools
 import json
@@ -161,10 +162,11 @@ def sweep_points(specs: list[str] | tuple[str, ...]) -> list[Point]:
 
 # ------------------------------------------------------------------------------------ config
 def effective_config(
-    manifest: Manifest, site: Site, config_file: Path | None, sets: list[tuple[str, Any]], point: Point
+    manifest: Manifest, site: Site, base_cfg: Config, sets: list[tuple[str, Any]], point: Point
 ) -> Config:
-    """Defaults < --config FILE < the manifest's config < the site's config < --set < the sweep point."""
-    cfg = load_config(config_file)
+    """Defaults < --config FILE (``base_cfg``, loaded once) < the manifest's config < the site's
+    config < --set < the sweep point."""
+    cfg = copy.deepcopy(base_cfg)
     where = f"site {site.name}" + (f", sweep point {point.name}" if point.name else "")
     try:
         update_from_dict(cfg, manifest.config)
@@ -203,11 +205,9 @@ def input_identity(path: Path, base: Path) -> list:
 
 
 def _map_image(yaml_path: Path) -> list[Path]:
-    import yaml
-
-    try:
-        doc = safe_yaml.loads(yaml_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError, safe_yaml.YamlLimitError):
+    try:  # (a map YAML that cannot be read fails later, in the replay, with its own message)
+        doc = safe_yaml.load_file(yaml_path, "map YAML", ValueError)
+    except ValueError:
         return []
     image = doc.get("image") if isinstance(doc, dict) else None
     if not isinstance(image, str):
@@ -240,6 +240,7 @@ def build_plan(
     base = manifest.path.parent.absolute()
     points = sweep_points(sweeps)
     plan = BatchPlan(out=out, manifest=manifest, points=points)
+    base_cfg = load_config(config_file)
     for site in manifest.sites:
         static_path, static_key = site.static, None
         if site.static_is_plan:
@@ -253,10 +254,10 @@ def build_plan(
             static_path, static_key = task.out_dir, st_key
         elif site.static is not None:
             static_key = fingerprint({"kind": "static input", "files": input_identity(site.static, base)})
-        weights = [sum(_size(p) for p in logs) for logs in site.days]
         identities = [[input_identity(p, base) for p in logs] for logs in site.days]
+        weights = [sum(size for ident in day for _, size, _ in ident) for day in identities]  # bytes of the day's logs
         for point in points:
-            cfg = effective_config(manifest, site, config_file, list(sets or []), point)
+            cfg = effective_config(manifest, site, base_cfg, list(sets or []), point)
             settings = to_dict(cfg)
             chain = Chain(site.name, point, [], plan.statics.get(site.name))
             prev_key, prev_dir = None, None
@@ -289,8 +290,3 @@ def build_plan(
             plan.chains.append(chain)
     return plan
 
-
-def _size(p: Path) -> int:
-    if p.is_dir():
-        return sum(q.stat().st_size for q in p.rglob("*") if q.is_file())
-    return p.stat().st_size

@@ -261,8 +261,6 @@ def _number(v: Any) -> bool:
 
 def _config_entry(value: Any, where: str, base: Path, bad) -> dict:
     """A 'config:' entry: a mapping of parameters, or the path of a YAML file of them."""
-    import yaml
-
     if value is None:
         return {}
     if isinstance(value, str):
@@ -273,10 +271,10 @@ def _config_entry(value: Any, where: str, base: Path, bad) -> dict:
                 f"{value}: no such file ({p}); give a YAML file of parameters (ltmap replay "
                 "--dump-config writes one) or a mapping",
             )
-        try:
-            value = safe_yaml.loads(p.read_text(encoding="utf-8")) or {}
-        except (yaml.YAMLError, safe_yaml.YamlLimitError, UnicodeDecodeError):
-            raise bad(where, f"{value}: not valid YAML; fix the syntax") from None
+        try:  # bounded as every YAML ltmap reads (size, aliases)
+            value = safe_yaml.load_file(p, "config file", ManifestError) or {}
+        except ManifestError as err:
+            raise bad(where, str(err)) from None
     if not isinstance(value, dict):
         raise bad(
             where,
