@@ -103,10 +103,30 @@ def test_a_loaded_state_starts_with_no_hit_marks():
     hit_tick(m, frames=3)
     m.integrate(ORIGIN, [HIT])  # a tick in progress: marked
     arrays = {k: np.array(v) for k, v in m.state_arrays().items()}
-    old = {k: v for k, v in arrays.items() if k != "O_hit"}  # a state from before the channel
+    assert "O_hit" not in arrays  # the marks of a tick in progress are not state
+    old = {**arrays, "O_hit": np.ones(arrays["O_logodds"].shape, dtype=np.uint8)}  # a state that wrote them
     for a in (arrays, old):
         m2 = LayeredMap(MapConfig())
         m2.load_state_arrays(a)
         assert int(m2.O.channel("hit").sum()) == 0
         r = miss_tick(m2)
         assert r.held == 1
+
+
+def test_state_files_with_and_without_hit_marks_load(tmp_path):
+    """A state file holds no hit marks (they belong to a tick in progress); one written while it
+    did (O_hit among its arrays) passes the state checks and loads as well."""
+    from ltmap_cli.io.state import read_state, write_state
+    from ltmap_cli.outputs.snapshots import check_state
+
+    m = LayeredMap(MapConfig())
+    hit_tick(m, frames=3)
+    arrays = {k: np.array(v) for k, v in m.state_arrays().items()}
+    with_marks = {**arrays, "O_hit": np.ones(arrays["O_logodds"].shape, dtype=np.uint8)}
+    for name, a in (("now.npz", arrays), ("with_marks.npz", with_marks)):
+        write_state(tmp_path / name, a, {"log_time_s": 1.0})
+        read, _ = read_state(tmp_path / name)
+        m2 = LayeredMap(MapConfig(resolution=check_state(read, tmp_path / name)))
+        m2.load_state_arrays(read)
+        assert np.array_equal(m2.O.channel("logodds"), m.O.channel("logodds"))
+        assert int(m2.O.channel("hit").sum()) == 0

@@ -73,6 +73,10 @@ O_CHANNELS = {
     "stamp": (np.int32, 0),  # id of the last frame that updated the voxel (0: never: unknown)
     "hit": (np.uint8, 0),  # 1: some frame of the current tick hit the voxel (the tick rules clear it)
 }
+# O's channels that belong to the tick in progress, not to a map's state: not written by
+# state_arrays, zero after load_state_arrays (so states from before such a channel load too)
+O_TRANSIENT = ("hit",)
+O_STATE_CHANNELS = {k: v for k, v in O_CHANNELS.items() if k not in O_TRANSIENT}
 D_CHANNELS = {
     "st": (np.float32, 0.0),
     "lt": (np.float32, 0.0),
@@ -1013,7 +1017,7 @@ class LayeredMap:
             "frame_id": np.array(self.frame_id),
             "tick_index": np.array(self.tick_index),
         }
-        out.update(self.O.to_arrays("O_"))
+        out.update({k: v for k, v in self.O.to_arrays("O_").items() if k[2:] not in O_TRANSIENT})
         out.update(self.D.to_arrays("D_"))
         return out
 
@@ -1031,7 +1035,8 @@ class LayeredMap:
         self.D = D
         # the hit marks belong to a tick in progress, which a loaded state does not resume (states
         # written before the channel existed have none)
-        o_arrays = {**arrays, "O_hit": np.zeros(np.shape(arrays["O_logodds"]), dtype=np.uint8)}
+        o_arrays = {**arrays, **{f"O_{c}": np.full(np.shape(arrays["O_logodds"]), O_CHANNELS[c][1], dtype=O_CHANNELS[c][0])
+                                 for c in O_TRANSIENT}}  # fmt: skip
         self.O = VoxelGrid.from_arrays(res, O_CHANNELS, o_arrays, "O_")
         self.frame_id = int(arrays["frame_id"])
         self.tick_index = int(arrays["tick_index"])

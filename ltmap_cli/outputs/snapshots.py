@@ -28,7 +28,7 @@ import numpy as np
 
 from ..core.config import MapConfig, logodds
 from ..core.grid import BLOCK_VOXELS, coord_to_pos
-from ..core.layers import D_CHANNELS, O_CHANNELS, LayeredMap
+from ..core.layers import D_CHANNELS, O_STATE_CHANNELS, LayeredMap
 from ..errors import LtmapWarning, MapFileError, shown
 from ..io.ply import write_voxels_ply
 from ..io.state import read_state, write_state
@@ -159,7 +159,7 @@ def check_state(arrays: dict[str, np.ndarray], p: Path) -> float:
 
     voxels = BLOCK_VOXELS
     need = ["resolution", "frame_id", "tick_index"]
-    for prefix, channels in (("O_", O_CHANNELS), ("D_", D_CHANNELS)):
+    for prefix, channels in (("O_", O_STATE_CHANNELS), ("D_", D_CHANNELS)):
         need += [f"{prefix}block_coords"] + [f"{prefix}{c}" for c in channels]
     missing = [k for k in need if k not in arrays]
     if missing:
@@ -174,7 +174,7 @@ def check_state(arrays: dict[str, np.ndarray], p: Path) -> float:
         raise bad(f"resolution {shown(res)} is not a voxel size in metres")
     if int(arrays["frame_id"]) < 0 or int(arrays["tick_index"]) < 0:
         raise bad("frame_id and tick_index must be >= 0")
-    for prefix, channels in (("O_", O_CHANNELS), ("D_", D_CHANNELS)):
+    for prefix, channels in (("O_", O_STATE_CHANNELS), ("D_", D_CHANNELS)):
         coords = arrays[f"{prefix}block_coords"]
         if coords.ndim != 2 or coords.shape[1] != 3 or coords.dtype.kind not in "iu":
             raise bad(f"{prefix}block_coords must be integers of shape (N, 3), got {coords.dtype} {coords.shape}")
