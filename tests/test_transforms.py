@@ -210,3 +210,16 @@ def test_lookup_caches_follow_new_samples_mounts_and_reparenting():
     # the returned matrices are the caller's own: changing one does not change the next lookup
     fourth[0, 3] = 99.0
     assert b.lookup("map", "laser", t)[0, 3] == 0.0
+
+
+def test_a_cycle_in_recorded_tf_ends_a_frames_chain():
+    """a -> b and b -> a both recorded (a broken tf tree): the chain from a frame to its root,
+    which the localization pre-pass walks too, stops instead of looping."""
+    from ltmap_cli.io.transforms import TfBuffer
+
+    tf = TfBuffer()
+    tf.add_mount("b:a=1,0,0,0,0,0")
+    tf.add_mount("a:b=0,1,0,0,0,0")
+    tf.add_mount("a:laser=0,0,0.3,0,0,0")
+    assert tf.chain("laser") == ("laser", "a", "b")
+    assert tf.root("/laser") == "b"

@@ -237,8 +237,12 @@ class TfBuffer:
         self._chains[frame] = out = tuple(chain)
         return out
 
+    def chain(self, frame: str) -> tuple[str, ...]:
+        """``frame`` and its parents up to the root of its tree (a cycle in recorded tf ends it)."""
+        return self._chain(norm(frame))
+
     def root(self, frame: str) -> str:
-        return self._chain(norm(frame))[-1]
+        return self.chain(frame)[-1]
 
     def _edge_matrix(self, child: str, stamp: int) -> np.ndarray:
         e = self.edges[child]

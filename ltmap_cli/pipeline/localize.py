@@ -100,9 +100,7 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
     def place(log_ns: int, item: ScanFrame) -> None:
         laser = norm(item.frame_id)
         if state["child"] is None:
-            chain = [laser]
-            while chain[-1] in tf.edges and tf.edges[chain[-1]].parent != chain[-1]:
-                chain.append(tf.edges[chain[-1]].parent)
+            chain = tf.chain(laser)
             state["child"], state["laser"] = chain[-1], laser
             state["odometry"] = any(not tf.edges[c].timeless for c in chain[:-1])
         T, _ = tf.try_lookup(state["child"], laser, item.stamp_ns)
