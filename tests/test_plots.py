@@ -292,12 +292,19 @@ def test_render_map_3d_bad_arguments(tmp_path):
 def test_open3d_probe_is_cached(monkeypatch):
     calls = []
 
-    def fake_run(*a, **k):
-        calls.append(a)
-        return subprocess.CompletedProcess(a, 1, "", "no EGL")
+    class FailingProbe:  # the child Python of the probe, which fails (no EGL)
+        returncode = 1
+
+        def communicate(self, timeout=None):
+            return "", "no EGL"
+
+    def fake_launch():
+        calls.append(1)
+        return FailingProbe()
 
     monkeypatch.setattr(render3d, "_probe_cache", None)
-    monkeypatch.setattr(render3d.subprocess, "run", fake_run)
+    monkeypatch.setattr(render3d, "_probe_proc", None)
+    monkeypatch.setattr(render3d, "_launch_probe", fake_launch)
     assert render3d.open3d_offscreen_available() is False
     assert render3d.open3d_offscreen_available() is False
     assert len(calls) == 1

@@ -197,7 +197,6 @@ def execute(
     engine: Engine,
     *,
     rerun: bool = False,
-    plot: bool = True,
     progress: Callable[[Counts], None] | None = None,
     notify: Callable[[str], None] | None = None,
 ) -> tuple[BatchResult, list[Path]]:
@@ -222,7 +221,7 @@ def execute(
             if started_here:
                 engine.close()
         result.engine = engine.description
-        return result, write_summary(plan, result, plot=plot)
+        return result, write_summary(plan, result)
 
 
 def run_batch(

@@ -16,7 +16,6 @@ from typing import Any
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 FLOAT32 = "std_msgs/msg/Float32"
 DEPTH_UNITS_OPTION = "Depth Units"
-DEFAULT_DEPTH_UNITS = 0.001  # metres per unit of a 16-bit depth image (ROS' 16UC1 convention)
 
 _STREAM_IMAGE = re.compile(r"^(?P<sensor>.*/sensor_\d+)/(?P<stream>[^/]+)/image/data$")
 

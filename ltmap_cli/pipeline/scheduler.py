@@ -57,7 +57,7 @@ class Skipped:
 
 class FrameHold:
     """Sensor frames held for tf, released in header-stamp order (the rule of the module doc):
-    ``push`` each frame, then ``release(log_ns, tf_high_ns)`` yields those whose tf has had time to
+    ``push`` each frame, then ``release(log_ns)`` yields those whose tf has had time to
     arrive; ``flush`` the rest at the end."""
 
     def __init__(self, wait_ns: int, max_pending: int = MAX_PENDING):
@@ -113,10 +113,8 @@ class Scheduler:
     def __init__(self, tf: TfBuffer, *, wait_ns: int, fixed_frame_request: str = "", base_frame: str = "base_link",
                  timer=None, max_pending: int = MAX_PENDING):  # fmt: skip
         self.tf = tf
-        self.wait_ns = wait_ns
         self.request = fixed_frame_request
         self.base_request = base_frame
-        self.max_pending = max_pending
         self.timer = timer
         self.fixed_frame: str | None = None
         self.base_frame: str | None = None

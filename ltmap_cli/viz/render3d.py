@@ -79,18 +79,22 @@ _probe_cache: bool | None = None
 _probe_proc: subprocess.Popen | None = None
 
 
+def _launch_probe() -> subprocess.Popen | None:
+    try:
+        return subprocess.Popen([sys.executable, "-c", _PROBE_CODE], stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                                stderr=subprocess.DEVNULL, text=True, env={**os.environ, "PYTHONWARNINGS": "ignore"})  # fmt: skip
+    except OSError:
+        return None
+
+
 def start_probe() -> None:
     """Start the probe of ``open3d_offscreen_available`` in the background (a replay does so at
-    its start, so that the 1 to 2 s the child takes overlap the mapping instead of the plots)."""
+    its start, so that the 1 to 2 s the child takes overlap the mapping instead of the plots);
+    not when ``LTMAP_RENDER3D=matplotlib`` says its answer will not be asked."""
     global _probe_proc
-    if _probe_cache is not None or _probe_proc is not None:
+    if _probe_cache is not None or _probe_proc is not None or os.environ.get("LTMAP_RENDER3D") == "matplotlib":
         return
-    try:
-        _probe_proc = subprocess.Popen([sys.executable, "-c", _PROBE_CODE], stdin=subprocess.DEVNULL,
-                                       stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
-                                       env={**os.environ, "PYTHONWARNINGS": "ignore"})  # fmt: skip
-    except OSError:
-        _probe_proc = None
+    _probe_proc = _launch_probe()
 
 
 def open3d_offscreen_available(refresh: bool = False) -> bool:
@@ -100,26 +104,21 @@ def open3d_offscreen_available(refresh: bool = False) -> bool:
     global _probe_cache, _probe_proc
     if _probe_cache is not None and not refresh:
         return _probe_cache
-    if _probe_proc is not None and not refresh:
-        proc, _probe_proc = _probe_proc, None
-        try:
-            out, _ = proc.communicate(timeout=PROBE_TIMEOUT_S)
-            _probe_cache = proc.returncode == 0 and "LTMAP_O3D_OK" in out
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.communicate()
-            _probe_cache = False
+    proc, _probe_proc = _probe_proc, None
+    if proc is not None and refresh:  # a probe started before: asked afresh
+        proc.kill()
+        proc.communicate()
+        proc = None
+    proc = proc or _launch_probe()
+    if proc is None:
+        _probe_cache = False
         return _probe_cache
     try:
-        r = subprocess.run(
-            [sys.executable, "-c", _PROBE_CODE],
-            capture_output=True,
-            text=True,
-            timeout=PROBE_TIMEOUT_S,
-            env={**os.environ, "PYTHONWARNINGS": "ignore"},
-        )
-        _probe_cache = r.returncode == 0 and "LTMAP_O3D_OK" in r.stdout
-    except (OSError, subprocess.SubprocessError):
+        out, _ = proc.communicate(timeout=PROBE_TIMEOUT_S)
+        _probe_cache = proc.returncode == 0 and "LTMAP_O3D_OK" in out
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
         _probe_cache = False
     return _probe_cache
 
