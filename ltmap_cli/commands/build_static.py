@@ -8,10 +8,9 @@ from pathlib import Path
 
 import click
 
-from ..io.mapfile import read_map_yaml, write_map
-from ..io.static_layer import MAP_YAML, write_static_layer
+from ..io.mapfile import read_map_yaml
 from ..outputs.folder import OutputFolder, listing
-from ..static.build import DEFAULT_MAX_CELLS, build_from_map, build_from_plan
+from ..static.build import DEFAULT_MAX_CELLS, build_from_map, build_from_plan, write_static
 from ..static.svgplan import parse_plan
 from . import nonempty_output
 
@@ -143,8 +142,7 @@ def build_static(
     # everything is computed before the first file is written, into a staging folder swapped in whole
     with OutputFolder(output, command="build-static", force=force) as out:
         out.refuse_inputs_inside([plan], "PLAN")
-        write_map(out.staging / MAP_YAML, layer.grid, png=True)
-        write_static_layer(out.staging, layer)
+        write_static(out.staging, layer)
         manifest = out.commit({"plan": str(plan)})
     g = layer.grid
     extra = []

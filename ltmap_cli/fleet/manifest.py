@@ -27,6 +27,7 @@ from typing import Any
 from ..config import Config, update_from_dict
 from ..errors import ConfigError
 from ..io import safe_yaml
+from ..io.static_layer import LAYER_FILE, MAP_YAML
 
 MANIFEST_KEYS = ("sites", "config")
 SITE_KEYS = ("static", "static_options", "config", "days")
@@ -219,7 +220,7 @@ def _static_entry(value: Any, where: str, base: Path, bad) -> Path:
             f"{value}: expected an SVG plan (.svg), a map_server YAML (.yaml) or a build-static "
             "output folder",
         )
-    if p.is_dir() and not any((p / n).is_file() for n in ("static.yaml", "static_layer.npz")):
+    if p.is_dir() and not any((p / n).is_file() for n in (MAP_YAML, LAYER_FILE)):
         raise bad(
             where,
             f"{value}: this folder holds no static.yaml or static_layer.npz; give a build-static "

@@ -20,14 +20,16 @@ import warnings
 from pathlib import Path
 
 from ..errors import LtmapError, LtmapWarning, OutputError
+from ..io.static_layer import LAYER_FILE, MAP_YAML
 from ..outputs.folder import OutputFolder, tidy
+from ..outputs.snapshots import final_state
 from ..pipeline.replay import Replay, ReplayRequest
 from .graph import DayTask, StaticTask
 
 DONE, UP_TO_DATE, FAILED = "done", "up to date", "failed"  # a task's result["status"]
 TASK_FILE = "batch_task.json"  # written last, inside the staging folder: the folder is complete
-DAY_OUTPUTS = ("report.json", "map.yaml", "long_term.yaml", "snapshots/state_final.npz")
-STATIC_OUTPUTS = ("static.yaml", "static_layer.npz")
+DAY_OUTPUTS = ("report.json", "map.yaml", "long_term.yaml", final_state())
+STATIC_OUTPUTS = (MAP_YAML, LAYER_FILE)
 
 
 def is_complete(folder: Path, key: str, required: tuple[str, ...]) -> bool:
@@ -101,9 +103,7 @@ def _replay_day(task: DayTask, staging: Path, final: Path) -> None:
 
 def _build_static(task: StaticTask, staging: Path, final: Path) -> None:
     """What ``ltmap build-static PLAN -o OUT/<site>/static`` writes, with the site's options."""
-    from ..io.mapfile import write_map
-    from ..io.static_layer import MAP_YAML, write_static_layer
-    from ..static.build import build_from_plan
+    from ..static.build import build_from_plan, write_static
     from ..static.svgplan import parse_plan
 
     o = task.options
@@ -112,5 +112,4 @@ def _build_static(task: StaticTask, staging: Path, final: Path) -> None:
     }
     build_kw = {k: o[k] for k in ("resolution", "wall_height", "furniture") if k in o}
     layer, _ = build_from_plan(parse_plan(task.plan, **parse_kw), **build_kw)
-    write_map(staging / MAP_YAML, layer.grid, png=True)
-    write_static_layer(staging, layer)
+    write_static(staging, layer)

@@ -56,6 +56,8 @@ MANIFEST = "ltmap_manifest.json"
 MANIFEST_MAX_BYTES = 64 * 2**20  # a manifest is a few kB; a bigger file is not one
 SYNC_THREADS = 8  # files hashed and fsynced at once by commit
 # the files an older ltmap (no manifest) wrote last into its folders: such a folder is ltmap's
+# (build-static's: io.static_layer's MAP_YAML and LAYER_FILE, spelled out: that module imports
+# numpy, and every command, --help too, imports this one)
 LEGACY_MARKERS = {"replay": ("report.json", "config.yaml"), "build-static": ("static.yaml", "static_layer.npz")}
 STAGING = "ltmap-staging-"
 ASIDE = "ltmap-old-"

@@ -24,8 +24,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PlanError
-from ..io.mapfile import DEFAULT_MAX_CELLS, GridMap
-from ..io.static_layer import StaticLayer, layer_from_grid, trinary
+from ..io.mapfile import DEFAULT_MAX_CELLS, GridMap, write_map
+from ..io.static_layer import MAP_YAML, StaticLayer, layer_from_grid, trinary, write_static_layer
 from .memory import BUILD_BYTES_PER_CELL as BYTES_PER_CELL
 from .memory import human as _human
 from .rasterize import Lattice, lines_to_segments, outline_lines, polygon_mask, segments_mask, thin_parts
@@ -81,6 +81,13 @@ def shapes_mask(shapes: list[PlanShape], lat: Lattice, thin_rule: bool = True):
     if spines:
         mask |= segments_mask(lines_to_segments(spines), lat)
     return mask, region
+
+
+def write_static(folder, layer: StaticLayer) -> None:
+    """What ``ltmap build-static`` writes into its (staging) folder: the map_server map
+    (static.yaml, .pgm, .png) and the 3D static layer beside it."""
+    write_map(folder / MAP_YAML, layer.grid, png=True)
+    write_static_layer(folder, layer)
 
 
 def build_from_plan(
