@@ -143,6 +143,7 @@ CONFIGS = {
     "serial": (False, False, True, {}),  # the reference path: generic decoding, one thread
     "before": (True, True, None, {}),  # the code of --before REF, in its default configuration
     "rate10": (True, True, True, {"map.sensor.depth_max_rate": 10.0}),  # an approximation: depth at 10 Hz
+    "projective": (True, True, True, {"map.sensor.depth_integration": "projective"}),  # core.projective
 }
 
 
@@ -154,12 +155,10 @@ def child(name: str, log: Path, out: Path) -> None:
 
     t_proc = time.perf_counter()
     import ltmap_cli
-    from ltmap_cli.config import Config
+    from ltmap_cli.config import Config, set_dotted
     from ltmap_cli.core.layers import LayeredMap
     from ltmap_cli.core.projection import project
     from ltmap_cli.pipeline.replay import Replay, ReplayRequest
-
-    from ltmap_cli.config import set_dotted
 
     fast, threads, quiet, settings = CONFIGS[name]
     if quiet is not None:

@@ -18,6 +18,9 @@ def logodds(p):
     return math.log(p / (1.0 - p)) if type(p) in (int, float) else np.log(p / (1.0 - p))
 
 
+DEPTH_INTEGRATIONS = ("exact", "projective")
+
+
 @dataclass
 class SensorConfig:
     """Sensor integration into O, OctoMap's rules and defaults."""
@@ -33,6 +36,11 @@ class SensorConfig:
     # Hz per depth topic (0: every frame): images closer than 0.9 / rate to the last one used are
     # not integrated (nor decoded); an approximation for speed, see docs/performance.md
     depth_max_rate: float = 0.0
+    # depth images: "exact" (every ray walked whole by the DDA) or "projective" (rays walked over
+    # their last projective_band m + 2 voxels; free space farther in front of the returns by
+    # projecting voxels onto the image: core.projective)
+    depth_integration: str = "projective"
+    projective_band: float = 0.2  # m
 
     @property
     def hit_logodds(self) -> float:
@@ -98,6 +106,11 @@ class MapConfig:
             problems.append("map.sensor.clamp_min_logodds < 0 < map.sensor.clamp_max_logodds must hold")
         if not (s.depth_max_rate >= 0):
             problems.append(f"map.sensor.depth_max_rate must be >= 0 (0: every frame), got {s.depth_max_rate}")
+        if s.depth_integration not in DEPTH_INTEGRATIONS:
+            problems.append(f"map.sensor.depth_integration must be one of {', '.join(DEPTH_INTEGRATIONS)}, "
+                            f"got {s.depth_integration!r}")  # fmt: skip
+        if not (s.projective_band >= 0):
+            problems.append(f"map.sensor.projective_band must be >= 0 m, got {s.projective_band}")
         if s.depth_max_range <= 0:
             problems.append(f"map.sensor.depth_max_range must be > 0, got {s.depth_max_range}")
         lay = self.layers

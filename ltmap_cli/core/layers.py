@@ -37,6 +37,7 @@ from .grid import (
     get_or_add_block,
     voxel_offset,
 )
+from .projective import TAIL_OVERLAP_VOXELS, depth_range_image, projective_blocks, projective_keys
 from .raycast import (
     FV_HITS,
     FV_MISSES,
@@ -569,6 +570,30 @@ class _QuietBlocks:
         self.update(lmap, len(qb), qb)
 
 
+class DepthProjection(NamedTuple):
+    """The misses the projection makes for one depth image (``LayeredMap.depth_projection``,
+    ``core.projective.projective_blocks``): per block its packed coordinates and its voxels' bits."""
+
+    keys: np.ndarray  # (n,) int64
+    masks: np.ndarray  # (n, 8) uint64
+
+
+def _depth_view(depth: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Raw depth pixels as the kernels take them: native byte order and read-only (as a log's
+    buffer gives them: one compiled specialization, not one per writeable flag); and whether they
+    are uint16 millimetres (else float32 metres)."""
+    if not depth.dtype.isnative:
+        depth = depth.astype(depth.dtype.newbyteorder("="))
+    if depth.flags.writeable:
+        depth = depth.view()
+        depth.flags.writeable = False
+    if depth.dtype == np.uint16:
+        return depth, True
+    if depth.dtype == np.float32:
+        return depth, False
+    raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
+
+
 class LayeredMap:
     """S, O, ST and LT on one voxel lattice, with SPEC 2's update rules."""
 
@@ -601,6 +626,7 @@ class LayeredMap:
         self._fq_vid = np.empty(1 << 16, dtype=np.int64)
         self._fq_due = np.empty(1 << 16, dtype=np.int32)
         self._fq_meta = np.zeros(3, dtype=np.int64)
+        self._proj_buffer = np.empty(1 << 18, dtype=np.int64)  # projective misses, applied in batches
 
     # -- static layer -------------------------------------------------------------------------
     def set_static(self, static: StaticGrid | None) -> None:
@@ -688,17 +714,7 @@ class LayeredMap:
         rays that ``integrate(T[:3, 3], transform_points(T, depth_to_points(metres, ...)), None,
         max_range, robot_pose, dedupe)`` casts (without the dropped ones). Reads no map state, so
         it may run in another thread than ``integrate_rays``."""
-        if not depth.dtype.isnative:
-            depth = depth.astype(depth.dtype.newbyteorder("="))
-        if depth.flags.writeable:  # the kernel sees read-only pixels (as a log's buffer gives them) either
-            depth = depth.view()  # way: one compiled specialization, not one per writeable flag
-            depth.flags.writeable = False
-        if depth.dtype == np.uint16:
-            unit_mm = True
-        elif depth.dtype == np.float32:
-            unit_mm = False
-        else:
-            raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
+        depth, unit_mm = _depth_view(depth)
         T = np.ascontiguousarray(T, dtype=np.float64)
         if 0 < max_range <= MAX_PLAIN_RANGE:
             reach = float(max_range)
@@ -714,6 +730,35 @@ class LayeredMap:
             float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
             bool(dedupe), 1.0 / self.resolution,
         )  # fmt: skip
+
+    def depth_projection(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
+                         max_range: float, ends: np.ndarray) -> DepthProjection:
+        """What ``apply_voxels`` needs to make the projective misses of one depth image (the
+        frame's ``depth_rays`` gave ``ends``). Reads no map state (a worker thread's part)."""
+        depth, unit_mm = _depth_view(depth)
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        band = float(self.cfg.sensor.projective_band)
+        reach, tmin, tmax, dil = depth_range_image(depth, unit_mm, float(fx), float(fy), float(cx), float(cy),
+                                                   float(max_range), band)  # fmt: skip
+        R, t = T[:3, :3], T[:3, 3]
+        Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
+        inv_res = 1.0 / self.resolution
+        lo, hi = t.copy(), t.copy()
+        if len(ends):
+            lo = np.minimum(lo, ends.min(axis=0))
+            hi = np.maximum(hi, ends.max(axis=0))
+        box = np.concatenate([np.floor(lo * inv_res), np.floor(hi * inv_res)]).astype(np.int64)
+        nb = int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1))
+        keys = np.empty(nb, dtype=np.int64)
+        masks = np.empty((nb, 8), dtype=np.uint64)
+        n = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv, box,
+                              self.resolution, band, keys, masks)  # fmt: skip
+        return DepthProjection(keys[:n], masks[:n])
+
+    def projective_tail(self) -> float:
+        """How far before its end a depth ray is walked in projective mode (m): the band and an
+        overlap of ``TAIL_OVERLAP_VOXELS``."""
+        return float(self.cfg.sensor.projective_band) + TAIL_OVERLAP_VOXELS * self.resolution
 
     def integrate(
         self,
@@ -735,15 +780,30 @@ class LayeredMap:
         ends, kind = self.rays(origin, points, returns, max_range, robot_pose, dedupe)
         return self.integrate_rays(origin, ends, kind)
 
+    def integrate_depth(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
+                        max_range: float, robot_pose: np.ndarray | None = None) -> FrameResult:
+        """Fuse one depth image (raw pixels, as ``depth_rays`` takes them) into O as the replay
+        does, by ``map.sensor.depth_integration``: exact (every ray walked whole) or projective
+        (``depth_projection``: the rays' tails and the projection)."""
+        sc = self.cfg.sensor
+        T = np.ascontiguousarray(T, dtype=np.float64)
+        ends, kind = self.depth_rays(depth, fx, fy, cx, cy, T, max_range, robot_pose, dedupe=sc.dedupe_dense)
+        if sc.depth_integration != "projective":
+            return self.integrate_rays(T[:3, 3], ends, kind)
+        projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
+        hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
+        return self.apply_voxels(hits, misses, int((kind > 0).sum()), projection)
+
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
         """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(frame_voxels(...))``."""
         hits, misses = self.frame_voxels(origin, ends, kind)
         return self.apply_voxels(hits, misses, int((kind > 0).sum()))
 
-    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray, tail: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The voxels these rays update, each once, in update order: (hits, misses), packed keys
         (``core.raycast.frame_voxels``: the DDA). Reads no map state, so it may run in other
-        threads than ``apply_voxels`` (each thread has its own scratch bitmap)."""
+        threads than ``apply_voxels`` (each thread has its own scratch bitmap). ``tail`` > 0: each
+        ray is walked over its last ``tail`` metres only (projective depth integration)."""
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
         scratch = self._scratch
         if not hasattr(scratch, "seen"):
@@ -759,7 +819,7 @@ class LayeredMap:
         checked = False
         while True:
             ok = frame_voxels(origin, ends, kind, inv_res, self.resolution, scratch.seen, meta, hits, scratch.misses,
-                              *scratch.sparse, state)  # fmt: skip
+                              *scratch.sparse, state, float(tail))  # fmt: skip
             if state[FV_PHASE] > 0 and not checked:  # the frame's box is known: within the keys' extent?
                 # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
                 box0 = meta[SEEN_I0 : SEEN_K0 + 1]
@@ -782,7 +842,8 @@ class LayeredMap:
             else:
                 scratch.sparse = sparse_grown(*scratch.sparse, meta[SEEN_SPARSE_GEN], 4 * len(scratch.sparse[0]))
 
-    def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0) -> FrameResult:
+    def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0,
+                     projection: DepthProjection | None = None) -> FrameResult:
         """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's
         stateful half, in the thread that owns the map.
 
@@ -796,12 +857,28 @@ class LayeredMap:
         stamp > 0, exactly when it is either way). A hit un-quiets its block from the next frame
         on. Decided here, in frame order, so every path (serial, threads) gives the same map."""
         q = self._quiet_sync()
-        sc = self.cfg.sensor
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
-        use_quiet = self.quiet_blocks
-        phase, start = 0, 0
         q.ch_meta[0] = 0
+        self._apply(q, hits, misses, 0, counters)
+        if projection is not None:  # the misses the projection makes (core.projective), in batches
+            buf = self._proj_buffer
+            nxt = 0
+            while nxt >= 0:
+                o = self.O
+                n, nxt = projective_keys(projection.keys, projection.masks, len(projection.keys), nxt, o.table_keys,
+                                         o.table_vals, q.quiet, self.quiet_blocks, buf)  # fmt: skip
+                self._apply(q, hits[:0], buf[:n], 1, counters)
+        if self.quiet_blocks and q.ch_meta[0]:
+            q.update(self, int(q.ch_meta[0]))
+        return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
+
+    def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:
+        """``apply_voxels_kernel`` from ``phase`` (0: hits then misses; 1: misses only), growing
+        storage as it asks."""
+        sc = self.cfg.sensor
+        use_quiet = self.quiet_blocks
+        start = 0
         while True:
             o = self.O
             status, phase, start = apply_voxels_kernel(
@@ -820,9 +897,6 @@ class LayeredMap:
                 q.changed = np.resize(q.changed, 2 * len(q.changed))
             else:
                 self._grow_tick_buffer()
-        if use_quiet and q.ch_meta[0]:
-            q.update(self, int(q.ch_meta[0]))
-        return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
 
     def _quiet_sync(self) -> _QuietBlocks:
         """The quiet blocks' state for the map as it is now: made afresh when O was replaced (a

@@ -221,7 +221,7 @@ def _seen_bit(seen, bit):
 
 @njit(cache=True, nogil=True)
 def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                 state):  # fmt: skip
+                 state, tail):  # fmt: skip
     """See ``_frame_voxels``: the dense bitmap's loop, or the sparse one's when the frame's box is
     too big for a dense bitmap (both compiled from the one loop: ``seen`` None or not)."""
     if state[FV_PHASE] == 0:  # a new frame
@@ -234,14 +234,14 @@ def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses
     seen_meta[SEEN_GROW] = 0
     if seen_meta[SEEN_DENSE] != 0:
         return _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen,
-                             sp_vals, sp_words, state)  # fmt: skip
+                             sp_vals, sp_words, state, tail)  # fmt: skip
     return _frame_voxels(origin, ends, kind, inv_res, res, None, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals,
-                         sp_words, state)  # fmt: skip
+                         sp_words, state, tail)  # fmt: skip
 
 
 @njit(cache=True, nogil=True)
 def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
-                  state):  # fmt: skip
+                  state, tail):  # fmt: skip
     """The voxels one frame updates, in the order OctoMap's per-frame rules update them, as
     packed keys (``grid.pack_block``): hits into ``hits[:state[FV_HITS]]`` (at most one per ray), misses into
     ``misses[:state[FV_MISSES]]``. Returns True when done; False when a buffer must grow first:
@@ -313,23 +313,32 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
         dy /= length
         dz /= length
         ci, cj, ck = ki0, kj0, kk0
+        rx, ry, rz = ox, oy, oz  # where this ray's walk starts
+        if tail > 0.0 and length > tail:
+            rx, ry, rz = ex - dx * tail, ey - dy * tail, ez - dz * tail
+            ci = np.int64(np.floor(rx * inv_res))
+            cj = np.int64(np.floor(ry * inv_res))
+            ck = np.int64(np.floor(rz * inv_res))
+            length = tail
+            if ci == ei and cj == ej and ck == ek:
+                continue
         si = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
         sj = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
         sk = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
         if si != 0:
-            tmx = ((ci + 0.5) * res + si * res * 0.5 - ox) / dx
+            tmx = ((ci + 0.5) * res + si * res * 0.5 - rx) / dx
             tdx = res / abs(dx)
         else:
             tmx = big
             tdx = big
         if sj != 0:
-            tmy = ((cj + 0.5) * res + sj * res * 0.5 - oy) / dy
+            tmy = ((cj + 0.5) * res + sj * res * 0.5 - ry) / dy
             tdy = res / abs(dy)
         else:
             tmy = big
             tdy = big
         if sk != 0:
-            tmz = ((ck + 0.5) * res + sk * res * 0.5 - oz) / dz
+            tmz = ((ck + 0.5) * res + sk * res * 0.5 - rz) / dz
             tdz = res / abs(dz)
         else:
             tmz = big

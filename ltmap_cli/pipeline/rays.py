@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.layers import LayeredMap
+from ..core.layers import DepthProjection, LayeredMap
 from ..core.sensors import depth_to_points, scan_to_points, transform_points
 from ..io.decode import RawDepthFrame
 from ..io.frames import CloudFrame, DepthFrame, ScanFrame
@@ -36,6 +36,7 @@ class CastFrame:
     rays_s: float
     cast_s: float
     filtered_pixels: int  # flying pixels dropped, or -1 when the filter did not run
+    projection: DepthProjection | None = None  # a depth frame in projective mode (apply_voxels makes its misses)
 
 
 class FrameCaster:
@@ -60,9 +61,17 @@ class FrameCaster:
             ends, kind = self.cloud_rays(frame, T, robot)
         else:  # pragma: no cover - the reader yields only these
             raise TypeError(type(frame).__name__)
+        projection, tail = None, 0.0
+        if self.sensor.depth_integration == "projective" and isinstance(frame, (DepthFrame, RawDepthFrame)):
+            k = frame.intrinsics
+            depth = frame.raw if isinstance(frame, RawDepthFrame) else frame.depth_m
+            projection = self.lmap.depth_projection(depth, k.fx, k.fy, k.cx, k.cy, T, self.sensor.depth_max_range,
+                                                    ends)  # fmt: skip
+            tail = self.lmap.projective_tail()
         t1 = time.perf_counter()
-        hits, misses = self.lmap.frame_voxels(T[:3, 3], ends, kind)
-        return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped)
+        hits, misses = self.lmap.frame_voxels(T[:3, 3], ends, kind, tail)
+        return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped,
+                         projection)  # fmt: skip
 
     def depth_raw_rays(self, frame: RawDepthFrame, T, robot):
         k, sc = frame.intrinsics, self.sensor

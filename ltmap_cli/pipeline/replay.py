@@ -433,7 +433,7 @@ class Replay:
         timer.add("rays", cast.rays_s)
         timer.add("cast", cast.cast_s)
         t0 = time.perf_counter()
-        r = run.lmap.apply_voxels(cast.hits, cast.misses, cast.n_rays)
+        r = run.lmap.apply_voxels(cast.hits, cast.misses, cast.n_rays, cast.projection)
         integrate_s = time.perf_counter() - t0
         timer.add("integrate", integrate_s)
         if cast.filtered_pixels >= 0:

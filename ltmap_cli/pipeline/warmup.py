@@ -81,13 +81,14 @@ def warm_planner(cfg: MapConfig) -> None:
 
 def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
     """The fused depth kernel for raw pixels of ``dtype``, C-contiguous or a strided view (numba
-    compiles one specialization per dtype and layout)."""
+    compiles one specialization per dtype and layout), and with projective depth integration the
+    projection's kernels."""
     m = LayeredMap(cfg)
     depth = np.full((2, 4), 1000 if np.dtype(dtype).kind == "u" else 1.0, dtype=dtype)
     depth = depth[:, :2] if contiguous else depth[:, ::2]
     if contiguous:
         depth = np.ascontiguousarray(depth)
-    m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
+    m.integrate_depth(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
 
 
 GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,

@@ -1,0 +1,336 @@
+"""Projective free space for depth images: each voxel of the camera's frustum visited once.
+
+A dense depth frame's rays converge on the camera, so the DDA walks the voxels near it many
+times (a 640x480 frame of a room seen along its length: 3.5 M steps for 250 k distinct voxels).
+With ``map.sensor.depth_integration: projective`` a depth frame is integrated in two parts:
+
+- near its returns, exactly as before: every ray (one per end voxel) is walked by the DDA over
+  its last ``band + overlap`` metres only (``core.raycast.frame_voxels`` with ``tail``), so the
+  hits, and the misses of the voxels next to surfaces, are those of the exact traversal;
+- farther in front of the returns, by projection: a voxel whose centre lies in the frustum,
+  projects onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the
+  camera than that pixel's range minus ``band`` is a miss (``projective_misses``). Blocks of O that
+  are quiet (all clamped free, no ST or LT: a miss there changes nothing) are skipped whole, and
+  blocks outside the frustum's planes are skipped by a sphere test, so the voxels visited are
+  those of the frustum's non-quiet blocks, each once.
+
+It differs from the exact traversal only in free space farther than ``band`` from a return
+(voxels a ray passes but whose centre projects onto a nearer pixel, at occluding edges and the
+image's borders, and voxels between the cast rays that no ray passes): there it decides free
+versus unknown, not what is occupied near a surface. Reads the map's block table and quiet flags:
+it runs in the thread that owns the map, in frame order (``LayeredMap.apply_voxels``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .grid import _PACK_BITS, _PACK_OFFSET, BLOCK, BLOCK_BITS, find_block, pack_block
+
+KEY_MASK = (1 << _PACK_BITS) - 1
+
+# the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
+TAIL_OVERLAP_VOXELS = 2
+
+
+TILE = 8  # pixels per side of the tiles whose min / max range bound whole blocks and voxel rims
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band):
+    """(reach, tile minima, tile maxima, dilated tile maxima) of one depth image. ``reach``: per
+    pixel the range (m, float32) from the camera to its return along the pixel's ray, cut at
+    ``max_range`` (a return beyond it clears up to there), minus ``band``; -1 - band where the
+    pixel is invalid (16UC1: 0; 32FC1: NaN, inf or <= 0). The tiles: the least and greatest
+    range (not minus band) over each TILE x TILE tile and over 2 x 2 of those and so on (``LEVELS``
+    levels), and the greatest over the 3 x 3 tiles around each, at levels 0 and 1. The camera-frame arithmetic of ``depth_image_rays``."""
+    h, w = depth.shape
+    out = np.empty((h, w), dtype=np.float32)
+    th, tw = (h + TILE - 1) // TILE, (w + TILE - 1) // TILE
+    tmin = np.full((th, tw), np.inf, dtype=np.float32)
+    tmax = np.full((th, tw), -np.inf, dtype=np.float32)
+    mm = np.float32(0.001)
+    xx = np.empty(w, dtype=np.float64)
+    for u in range(w):
+        xr = (np.float64(u) - cx) / fx
+        xx[u] = 1.0 + xr * xr
+    cut = max_range if max_range > 0.0 else np.inf
+    for v in range(h):
+        yv = (np.float64(v) - cy) / fy
+        yy = yv * yv
+        row = out[v]
+        for u in range(w):  # no branches: vectorized
+            raw = depth[v, u]
+            if unit_mm:
+                z = np.float64(np.float32(raw) * mm)
+                valid = raw != 0
+            else:
+                z = np.float64(np.float32(raw))
+                valid = np.isfinite(z) & (z > 0)
+            r = min(z * np.sqrt(xx[u] + yy), cut)
+            row[u] = np.float32(r) if valid else np.float32(-1.0)
+        tr = v // TILE
+        for u in range(w):
+            t = u // TILE
+            x = row[u]
+            tmin[tr, t] = min(tmin[tr, t], x)
+            tmax[tr, t] = max(tmax[tr, t], x)
+        for u in range(w):
+            row[u] -= np.float32(band)
+    pmax = _pyramid(tmax, True)
+    dil = np.empty((2, th, tw), dtype=np.float32)  # the greatest range over the 3 x 3 tiles around, levels 0 and 1
+    for lv in range(2):
+        nh, nw = (th + (1 << lv) - 1) >> lv, (tw + (1 << lv) - 1) >> lv
+        for a in range(nh):
+            for b in range(nw):
+                m = np.float32(-1.0)
+                for da in range(max(a - 1, 0), min(a + 2, nh)):
+                    for db in range(max(b - 1, 0), min(b + 2, nw)):
+                        m = max(m, pmax[lv, da, db])
+                dil[lv, a, b] = m
+    return out, _pyramid(tmin, False), pmax, dil
+
+
+LEVELS = 6  # tile pyramid levels: tiles of TILE, 2 TILE, ... 32 TILE pixels
+
+
+@njit(cache=True, nogil=True)
+def _pyramid(t0, use_max):
+    """(LEVELS, th, tw): level 0 the tiles ``t0``, level l the max (or min) over 2 x 2 tiles of
+    level l - 1 (in its top-left (th >> l) x (tw >> l) corner, rounded up)."""
+    th, tw = t0.shape
+    pyr = np.empty((LEVELS, th, tw), dtype=np.float32)
+    pyr[0] = t0
+    ph, pw = th, tw
+    for lv in range(1, LEVELS):
+        nh, nw = (ph + 1) // 2, (pw + 1) // 2
+        for a in range(nh):
+            for b in range(nw):
+                m = pyr[lv - 1, 2 * a, 2 * b]
+                for da in range(2):
+                    for db in range(2):
+                        if 2 * a + da < ph and 2 * b + db < pw:
+                            x = pyr[lv - 1, 2 * a + da, 2 * b + db]
+                            m = max(m, x) if use_max else min(m, x)
+                pyr[lv, a, b] = m
+        ph, pw = nh, nw
+    return pyr
+
+
+@njit(cache=True, nogil=True)
+def _tiles_query(pyr, u0, u1, v0, v1, use_max):
+    """The greatest (or least) range over pixels [u0, u1] x [v0, v1] (clipped to the image),
+    bounded from the pyramid: over at most 3 x 3 tiles of the finest level whose tiles cover the
+    rectangle in 2 of them per axis (the tiles may reach beyond it: a looser, safe bound)."""
+    _, th, tw = pyr.shape
+    t0, t1 = max(np.int64(u0) // TILE, 0), min(np.int64(u1) // TILE, tw - 1)
+    s0, s1 = max(np.int64(v0) // TILE, 0), min(np.int64(v1) // TILE, th - 1)
+    lv = 0
+    while lv < LEVELS - 1 and (t1 - t0 >= 2 or s1 - s0 >= 2):
+        lv += 1
+        t0, t1, s0, s1 = t0 >> 1, t1 >> 1, s0 >> 1, s1 >> 1
+    m = np.float32(-1.0) if use_max else np.float32(np.inf)
+    for a in range(s0, s1 + 1):
+        for b in range(t0, t1 + 1):
+            x = pyr[lv, a, b]
+            m = max(m, x) if use_max else min(m, x)
+    return np.float64(m)
+
+
+CULLED, FRONT, MIXED = 0, 1, 2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
+              planes, tmin, tmax):  # fmt: skip
+    """A cube of ``nvox`` voxels a side centred at (qx, qy, qz) (optical frame): CULLED when no
+    voxel of it can be a miss (outside the frustum's side planes, behind the camera, beyond every
+    range, or farther than every range its voxels and their rims project onto), FRONT when every
+    voxel is (nearer than every range its voxels' centres project onto, minus band), else MIXED."""
+    al, ar, at, ab, nl, nr, nt, nb = planes[0], planes[1], planes[2], planes[3], planes[4], planes[5], planes[6], planes[7]
+    half = 0.5 * nvox * res
+    rad = half * np.sqrt(3.0)  # the cube's bounding sphere
+    if qz < -rad:
+        return CULLED
+    if (qx - al * qz) * nl < -rad or (ar * qz - qx) * nr < -rad:
+        return CULLED
+    if (qy - at * qz) * nt < -rad or (ab * qz - qy) * nb < -rad:
+        return CULLED
+    dist = np.sqrt(qx * qx + qy * qy + qz * qz)
+    if dist - rad >= far:
+        return CULLED
+    zn = qz - rad
+    if zn <= 0.05 * res:  # reaches the camera's plane: test its voxels
+        return MIXED
+    k = 0.5 * nvox  # corner offsets in voxel steps
+    u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
+    for cnr in range(8):
+        sx = k if cnr & 1 else -k
+        sy = k if cnr & 2 else -k
+        sz = k if cnr & 4 else -k
+        xx = qx + ex0 * sx + ey0 * sy + ez0 * sz
+        yy = qy + ex1 * sx + ey1 * sy + ez1 * sz
+        zz = max(qz + ex2 * sx + ey2 * sy + ez2 * sz, zn)
+        uu, vv = fx * xx / zz + cx, fy * yy / zz + cy
+        u0, u1, v0, v1 = min(u0, uu), max(u1, uu), min(v0, vv), max(v1, vv)
+    inside = u0 >= 0.0 and u1 < w - 1.0 and v0 >= 0.0 and v1 < h - 1.0
+    if inside and _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, False) - band > dist + rad:
+        return FRONT
+    rim = 0.5 * res * max(fx, fy) / zn + 1.0
+    if _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, True) - band <= dist - rad:
+        return CULLED
+    return MIXED
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks):
+    """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive)
+    that the projection makes misses, block by block: the block's packed coordinates
+    (``grid.pack_block``) into ``keys`` and its voxels' bits (``grid.voxel_offset`` order) into
+    ``masks`` (n, 8); returns n. Reads no map state (a worker thread's part).
+
+    ``reach``, ``tmin``, ``tmax``, ``dil``: ``depth_range_image``; ``Tinv`` (3, 4): fixed frame ->
+    optical frame. A voxel is a miss when its centre (z > 0 in the optical frame) is nearer than
+    r - band for the range r of the pixel it projects onto (round(u), round(v)), or of one of the 8
+    pixels at the rim of its projection (centre +- half a voxel's projected size: a voxel partly
+    seen past an occluding edge, which rays passing its corner would clear). Blocks, then their
+    4 x 4 x 4 quarters, that surely hold no miss are skipped and those that surely are all misses
+    are taken whole (``_classify``), without testing their voxels."""
+    h, w = reach.shape
+    bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
+    bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
+    nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
+    nblocks = (bi1 - bi0 + 1) * nbj * nbk
+    rmax = -1.0
+    for a in range(tmax.shape[1]):
+        for b in range(tmax.shape[2]):
+            rmax = max(rmax, np.float64(tmax[0, a, b]))
+    far = rmax - band
+    if far <= 0.0:
+        return 0
+    # the frustum's side planes through the camera centre (pixel edges -0.5 and w - 0.5), unit normals
+    planes = np.empty(8)
+    planes[0], planes[1] = (-0.5 - cx) / fx, (w - 0.5 - cx) / fx
+    planes[2], planes[3] = (-0.5 - cy) / fy, (h - 0.5 - cy) / fy
+    for t in range(4):
+        planes[4 + t] = 1.0 / np.sqrt(1.0 + planes[t] * planes[t])
+    ex0, ex1, ex2 = Tinv[0, 0] * res, Tinv[1, 0] * res, Tinv[2, 0] * res  # a voxel step along x, in the optical frame
+    ey0, ey1, ey2 = Tinv[0, 1] * res, Tinv[1, 1] * res, Tinv[2, 1] * res
+    ez0, ez1, ez2 = Tinv[0, 2] * res, Tinv[1, 2] * res, Tinv[2, 2] * res
+    full = ~np.uint64(0)
+    Q = BLOCK // 2
+    n = 0
+    for b in range(nblocks):
+        bi = bi0 + b // (nbj * nbk)
+        bj = bj0 + (b // nbk) % nbj
+        bk = bk0 + b % nbk
+        # voxel (0, 0, 0) of the block: its centre in the optical frame
+        cx0 = (bi * BLOCK + 0.5) * res
+        cy0 = (bj * BLOCK + 0.5) * res
+        cz0 = (bk * BLOCK + 0.5) * res
+        px0 = Tinv[0, 0] * cx0 + Tinv[0, 1] * cy0 + Tinv[0, 2] * cz0 + Tinv[0, 3]
+        py0 = Tinv[1, 0] * cx0 + Tinv[1, 1] * cy0 + Tinv[1, 2] * cz0 + Tinv[1, 3]
+        pz0 = Tinv[2, 0] * cx0 + Tinv[2, 1] * cy0 + Tinv[2, 2] * cz0 + Tinv[2, 3]
+        g = 0.5 * (BLOCK - 1)  # the block's centre, in voxel steps from voxel (0, 0, 0)
+        cls = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g, BLOCK,
+                        ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h, planes,
+                        tmin, tmax)  # fmt: skip
+        if cls == CULLED:
+            continue
+        keys[n] = pack_block(bi, bj, bk)
+        if cls == FRONT:  # every voxel's centre is nearer than its pixel's range - band
+            for t in range(8):
+                masks[n, t] = full
+            n += 1
+            continue
+        for t in range(8):
+            masks[n, t] = 0
+        found = False
+        for sub in range(8):  # the block's quarters (4 x 4 x 4)
+            sa, sc, se = (sub >> 2) * Q, ((sub >> 1) & 1) * Q, (sub & 1) * Q
+            g2 = 0.5 * (Q - 1)
+            qcls = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
+                             py0 + ex1 * (sa + g2) + ey1 * (sc + g2) + ez1 * (se + g2),
+                             pz0 + ex2 * (sa + g2) + ey2 * (sc + g2) + ez2 * (se + g2), Q,
+                             ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h, planes,
+                             tmin, tmax)  # fmt: skip
+            if qcls == CULLED:
+                continue
+            for a in range(sa, sa + Q):
+                for c in range(sc, sc + Q):
+                    for e in range(se, se + Q):
+                        free = qcls == FRONT
+                        if not free:  # the voxel's centre in the optical frame, and its pixel
+                            x = px0 + a * ex0 + c * ey0 + e * ez0
+                            y = py0 + a * ex1 + c * ey1 + e * ez1
+                            z = pz0 + a * ex2 + c * ey2 + e * ez2
+                            if z <= 0.0:
+                                continue
+                            iz = 1.0 / z
+                            uf = fx * x * iz + cx + 0.5
+                            vf = fy * y * iz + cy + 0.5
+                            d2 = x * x + y * y + z * z
+                            su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
+                            rim = True  # test the pixels at the rim of its projection
+                            if uf >= 0.0 and uf < w and vf >= 0.0 and vf < h:
+                                ui, vi = np.int64(uf), np.int64(vf)
+                                r = np.float64(reach[vi, ui])
+                                free = r > 0.0 and r * r > d2
+                                if not free and su < 2 * TILE and sv < 2 * TILE:  # the rim lies within the 3 x 3
+                                    lv = 0 if su < TILE and sv < TILE else 1  # tiles around: any range far enough?
+                                    r = np.float64(dil[lv, (vi // TILE) >> lv, (ui // TILE) >> lv]) - band
+                                    rim = r > 0.0 and r * r > d2
+                            else:  # outside the image: its rim too, unless within half a voxel of it
+                                rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
+                            if not free and rim:  # partly seen past an occluding edge?
+                                for q in range(8):
+                                    du = su * (-1.0 if q == 0 or q == 3 or q == 5 else (1.0 if q == 2 or q == 4 or q == 7 else 0.0))
+                                    dv = sv * (-1.0 if q < 3 else (1.0 if q > 4 else 0.0))
+                                    ug, vg = uf + du, vf + dv
+                                    if ug >= 0.0 and ug < w and vg >= 0.0 and vg < h:
+                                        r = np.float64(reach[np.int64(vg), np.int64(ug)])
+                                        if r > 0.0 and r * r > d2:
+                                            free = True
+                                            break
+                        if free:
+                            found = True
+                            off = (a << (2 * BLOCK_BITS)) | (c << BLOCK_BITS) | e
+                            masks[n, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+        if found:
+            n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def projective_keys(keys, masks, n, start, table_keys, table_vals, quiet, use_quiet, out):
+    """The misses of ``projective_blocks``' blocks ``start`` .. ``n - 1`` as packed voxel keys
+    into ``out``, skipping quiet O blocks (``use_quiet``: a miss there changes nothing). Returns
+    (keys written, the block to go on from: -1 when done); stops before a block when fewer than
+    512 slots are left. Reads the map: the thread that owns it, in frame order."""
+    cap = out.shape[0]
+    m = 0
+    for t in range(start, n):
+        if cap - m < BLOCK * BLOCK * BLOCK:
+            return m, t
+        packed = keys[t]
+        bi = (packed >> 42) - _PACK_OFFSET
+        bj = ((packed >> 21) & KEY_MASK) - _PACK_OFFSET
+        bk = (packed & KEY_MASK) - _PACK_OFFSET
+        if use_quiet:
+            ob = find_block(table_keys, table_vals, bi, bj, bk)
+            if ob >= 0 and quiet[ob] != 0:
+                continue
+        for wd in range(8):
+            word = masks[t, wd]
+            if word == 0:
+                continue
+            for bit in range(64):
+                if (word >> np.uint64(bit)) & np.uint64(1):
+                    off = wd * 64 + bit
+                    a = off >> (2 * BLOCK_BITS)
+                    c = (off >> BLOCK_BITS) & (BLOCK - 1)
+                    e = off & (BLOCK - 1)
+                    out[m] = pack_block(bi * BLOCK + a, bj * BLOCK + c, bk * BLOCK + e)
+                    m += 1
+    return m, -1
