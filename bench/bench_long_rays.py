@@ -20,12 +20,19 @@ replay's stage clock, peak memory; and per scene the cost model's inputs, measur
 depth frame: mean length of the cast rays (one per end voxel after the dedupe) and of the pixels,
 DDA steps per frame (voxels each ray passes) and distinct voxels each frame updates.
 
+Configurations (``--configs``, run interleaved): ``projective`` (the default depth integration,
+``core.projective``), ``exact`` (``map.sensor.depth_integration: exact``: every ray walked whole),
+``noquiet`` (exact without the quiet blocks), ``serial`` (exact on the reference path: generic
+decoding, one thread), ``rate10`` (exact at 10 depth frames a second). Every configuration's maps
+are compared with the first's: arrays that differ, and the IoU of O's occupied voxels, of LT's
+and of P's occupied cells (the issue's bound for an approximate default: 0.99).
+
 ``--before REF`` also runs the package as it was at git ref REF (extracted with ``git archive``
 under ``bench/.cache``), interleaved with the current code, ``--repeats`` times each, and checks
 that the final maps are the same (O log-odds and stamps, D, bit for bit).
 
 Run: python bench/bench_long_rays.py [--scenes room,hall,house] [--before REF] [--repeats N]
-     [--configs exact,serial,noquiet,rate10]
+     [--configs exact,projective,serial,noquiet,rate10] [--cli]
 """
 
 from __future__ import annotations
@@ -136,14 +143,15 @@ if __name__ == "__main__" and "--generate-only" in sys.argv:
     sys.exit(0)
 
 
+EXACT = {"map.sensor.depth_integration": "exact"}
 CONFIGS = {
     # name: (fast, threads, quiet_blocks, settings (--set style) on top of the defaults)
-    "exact": (True, True, True, {}),  # the default
-    "noquiet": (True, True, False, {}),  # the default without the quiet blocks (the code before that lever)
-    "serial": (False, False, True, {}),  # the reference path: generic decoding, one thread
+    "projective": (True, True, True, {}),  # the default (core.projective)
+    "exact": (True, True, True, EXACT),  # every depth ray walked whole by the DDA
+    "noquiet": (True, True, False, EXACT),  # exact without the quiet blocks (the code before that lever)
+    "serial": (False, False, True, EXACT),  # the reference path: generic decoding, one thread, exact
     "before": (True, True, None, {}),  # the code of --before REF, in its default configuration
-    "rate10": (True, True, True, {"map.sensor.depth_max_rate": 10.0}),  # an approximation: depth at 10 Hz
-    "projective": (True, True, True, {"map.sensor.depth_integration": "projective"}),  # core.projective
+    "rate10": (True, True, True, {**EXACT, "map.sensor.depth_max_rate": 10.0}),  # exact, depth at 10 Hz
 }
 
 
@@ -314,7 +322,7 @@ def p_cells(state):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--scenes", default="room,hall,house", help="comma separated: " + ", ".join(SCENES))
-    ap.add_argument("--configs", default="noquiet,exact", help="comma separated, run interleaved: "
+    ap.add_argument("--configs", default="exact,projective", help="comma separated, run interleaved: "
                     + ", ".join(CONFIGS))
     ap.add_argument("--before", default="", help="git ref: adds the configuration 'before' (that code)")
     ap.add_argument("--repeats", type=int, default=2, help="rounds of the interleaved configurations")

@@ -15,9 +15,11 @@ Configurations, all measured in this run:
 - ``serial``: the reference path: frames decoded by the generic deserializers in the main
   thread, depth images turned into (N, 3) float64 points, transformed, classified and deduped
   (``replay.fast_path: false``, ``replay.reader_thread: false``);
-- ``exact``: the default: CDR read directly with numpy, fused depth kernel, reader thread beside
-  integration; the same O bit for bit as ``serial`` (checked here: the O log-odds arrays of the
-  two runs are compared);
+- ``exact``: CDR read directly with numpy, fused depth kernel, reader thread beside integration,
+  every depth ray walked whole (``map.sensor.depth_integration: exact``); the same O bit for bit as
+  ``serial`` (checked here: the O log-odds arrays of the two runs are compared);
+- ``projective``: the default: ``exact`` with projective depth integration (``core.projective``),
+  an approximation whose effect on the map is printed as IoU of LT and of P against ``exact``;
 - ``rate5``: ``exact`` with ``map.sensor.depth_max_rate: 5`` (at most 5 depth frames per second
   per camera integrated; the others are not even decoded), an approximation whose effect on the
   map is printed as IoU of LT and of P against ``exact``.
@@ -29,7 +31,7 @@ Configurations, all measured in this run:
 Every configuration runs in a fresh process, first replaying the 50 s house sample once so that
 numba kernels are compiled or loaded from their cache before the timed run.
 
-Run: python bench/bench_replay.py [--duration S] [--only serial,exact,rate5] [--before REF]
+Run: python bench/bench_replay.py [--duration S] [--only serial,exact,projective,rate5] [--before REF]
 """
 
 from __future__ import annotations
@@ -166,14 +168,15 @@ if __name__ == "__main__" and "--generate-only" in sys.argv:
 
 
 CONFIGS = {
-    # name: (fast, threads, depth_max_rate)
-    "before": (False, False, 0.0),  # the code of --before REF (git archive), as it was
-    "before-exact": (True, True, 0.0),  # REF's code in the exact configuration (REF has fast/threads)
-    "serial": (False, False, 0.0),
-    "exact": (True, True, 0.0),
-    "exact-1thread": (True, False, 0.0),
-    "rate10": (True, True, 10.0),
-    "rate5": (True, True, 5.0),
+    # name: (fast, threads, depth_max_rate, map.sensor.depth_integration)
+    "before": (False, False, 0.0, None),  # the code of --before REF (git archive), as it was
+    "before-exact": (True, True, 0.0, "exact"),  # REF's code in the exact configuration (REF has fast/threads)
+    "serial": (False, False, 0.0, "exact"),
+    "exact": (True, True, 0.0, "exact"),
+    "exact-1thread": (True, False, 0.0, "exact"),
+    "projective": (True, True, 0.0, "projective"),  # the default (core.projective)
+    "rate10": (True, True, 10.0, "exact"),
+    "rate5": (True, True, 5.0, "exact"),
 }
 
 
@@ -192,11 +195,13 @@ def child(name: str, log: Path, static: Path, out: Path) -> None:
     except ImportError:  # --before a commit older than the pipeline package
         from ltmap_cli.replay import Replay, ReplayRequest
 
-    fast, threads, rate = CONFIGS[name]
+    fast, threads, rate, integration = CONFIGS[name]
     warm_kernels(Replay, ReplayRequest, Config, out, fast, threads)
     cfg = Config()
     cfg.replay.plots = False
     cfg.map.sensor.depth_max_rate = rate
+    if integration is not None:  # (code before the setting ignores it: it was exact)
+        cfg.map.sensor.depth_integration = integration
     run = Replay(cfg, ReplayRequest([log], out, static=static))
     run.fast, run.threads = fast, threads
     t0 = time.perf_counter()
@@ -303,7 +308,7 @@ def machine() -> str:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=300.0, help="log length, s (default 300: the SPEC's)")
-    ap.add_argument("--only", default="serial,exact,rate5", help="configurations, comma separated: "
+    ap.add_argument("--only", default="serial,exact,projective,rate5", help="configurations, comma separated: "
                     + ", ".join(CONFIGS))
     ap.add_argument("--before", default="", help="git ref of the code before this work: adds the configuration "
                     "'before' (that code, as it was, extracted under bench/.cache)")
