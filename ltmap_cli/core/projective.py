@@ -277,9 +277,16 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                                 ui, vi = np.int64(uf), np.int64(vf)
                                 r = np.float64(reach[vi, ui])
                                 free = r > 0.0 and r * r > d2
-                                if not free and su < 2 * TILE and sv < 2 * TILE:  # the rim lies within the 3 x 3
-                                    lv = 0 if su < TILE and sv < TILE else 1  # tiles around: any range far enough?
-                                    r = np.float64(dil[lv, (vi // TILE) >> lv, (ui // TILE) >> lv]) - band
+                                if not free and su < TILE and sv < TILE:  # the rim's pixels lie in at most 2 x 2
+                                    t0 = max(np.int64(uf - su), 0) // TILE  # tiles: any range far enough there?
+                                    t1 = min(np.int64(uf + su), w - 1) // TILE
+                                    s0 = max(np.int64(vf - sv), 0) // TILE
+                                    s1 = min(np.int64(vf + sv), h - 1) // TILE
+                                    r = max(max(tmax[0, s0, t0], tmax[0, s0, t1]), max(tmax[0, s1, t0], tmax[0, s1, t1]))
+                                    r = np.float64(r) - band
+                                    rim = r > 0.0 and r * r > d2
+                                elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
+                                    r = np.float64(dil[1, (vi // TILE) >> 1, (ui // TILE) >> 1]) - band
                                     rim = r > 0.0 and r * r > d2
                             else:  # outside the image: its rim too, unless within half a voxel of it
                                 rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
