@@ -211,3 +211,20 @@ def test_house_sample_agrees_with_exact_rays(tmp_path):
                       np.argwhere(p.data == 100) + [p.i0, p.j0])  # fmt: skip
     for what, a, b in zip(("O", "LT", "P"), maps["exact"], maps["projective"]):
         assert _iou(a, b) >= 0.99, what
+
+
+def test_projection_listed_in_chunks_is_the_same(monkeypatch):
+    """The blocks with misses are listed in chunks (memory follows the frustum's free space, not
+    the frame's box, which holds millions of blocks at 0.01 m): chunks of 7 blocks give the same
+    projection as one."""
+    import ltmap_cli.core.layers as layers
+
+    depth = _wall()
+    depth[40:80, 60:100] = 1500
+    m = _map()
+    ends, _ = m.depth_rays(depth, F, F, CX, CY, POSE, 8.0)
+    whole = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
+    monkeypatch.setattr(layers, "PROJECTIVE_CHUNK_BLOCKS", 7)
+    chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
+    assert len(whole.keys) > 7 * 3
+    assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)

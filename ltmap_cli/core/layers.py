@@ -37,7 +37,13 @@ from .grid import (
     get_or_add_block,
     voxel_offset,
 )
-from .projective import TAIL_OVERLAP_VOXELS, depth_range_image, projective_blocks, projective_keys
+from .projective import (
+    PROJECTIVE_CHUNK_BLOCKS,
+    TAIL_OVERLAP_VOXELS,
+    depth_range_image,
+    projective_blocks,
+    projective_keys,
+)
 from .raycast import (
     FV_HITS,
     FV_MISSES,
@@ -748,12 +754,19 @@ class LayeredMap:
             lo = np.minimum(lo, ends.min(axis=0))
             hi = np.maximum(hi, ends.max(axis=0))
         box = np.concatenate([np.floor(lo * inv_res), np.floor(hi * inv_res)]).astype(np.int64)
+        # blocks with misses, in chunks (memory follows the frustum's free space, not the box: a
+        # box at 0.01 m holds millions of blocks)
         nb = int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1))
-        keys = np.empty(nb, dtype=np.int64)
-        masks = np.empty((nb, 8), dtype=np.uint64)
-        n = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv, box,
-                              self.resolution, band, keys, masks)  # fmt: skip
-        return DepthProjection(keys[:n], masks[:n])
+        cap = min(nb, PROJECTIVE_CHUNK_BLOCKS)
+        parts, nxt = [], 0
+        while nxt >= 0:
+            keys, masks = np.empty(cap, dtype=np.int64), np.empty((cap, 8), dtype=np.uint64)
+            n, nxt = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv, box,
+                                       self.resolution, band, keys, masks, nxt)  # fmt: skip
+            parts.append((keys[:n], masks[:n]))
+        if len(parts) == 1:
+            return DepthProjection(*parts[0])
+        return DepthProjection(np.concatenate([k for k, _ in parts]), np.concatenate([m for _, m in parts]))
 
     def projective_tail(self) -> float:
         """How far before its end a depth ray is walked in projective mode (m): the band and an

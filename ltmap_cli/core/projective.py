@@ -32,6 +32,7 @@ KEY_MASK = (1 << _PACK_BITS) - 1
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
+PROJECTIVE_CHUNK_BLOCKS = 1 << 14  # blocks with misses listed per call of projective_blocks (1.2 MB)
 
 
 TILE = 8  # pixels per side of the tiles whose min / max range bound whole blocks and voxel rims
@@ -184,11 +185,12 @@ def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks):
+def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, start):
     """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive)
     that the projection makes misses, block by block: the block's packed coordinates
     (``grid.pack_block``) into ``keys`` and its voxels' bits (``grid.voxel_offset`` order) into
-    ``masks`` (n, 8); returns n. Reads no map state (a worker thread's part).
+    ``masks`` (n, 8), from block number ``start`` of the box (x, y, z order); returns (n, the block
+    to go on from when ``keys`` is full, -1 when done). Reads no map state (a worker thread's part).
 
     ``reach``, ``tmin``, ``tmax``, ``dil``: ``depth_range_image``; ``Tinv`` (3, 4): fixed frame ->
     optical frame. A voxel is a miss when its centre (z > 0 in the optical frame) is nearer than
@@ -208,7 +210,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
             rmax = max(rmax, np.float64(tmax[0, a, b]))
     far = rmax - band
     if far <= 0.0:
-        return 0
+        return 0, -1
     # the frustum's side planes through the camera centre (pixel edges -0.5 and w - 0.5), unit normals
     planes = np.empty(8)
     planes[0], planes[1] = (-0.5 - cx) / fx, (w - 0.5 - cx) / fx
@@ -221,7 +223,10 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     full = ~np.uint64(0)
     Q = BLOCK // 2
     n = 0
-    for b in range(nblocks):
+    cap = keys.shape[0]
+    for b in range(start, nblocks):
+        if n == cap:
+            return n, b
         bi = bi0 + b // (nbj * nbk)
         bj = bj0 + (b // nbk) % nbj
         bk = bk0 + b % nbk
@@ -306,7 +311,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                             masks[n, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
         if found:
             n += 1
-    return n
+    return n, -1
 
 
 @njit(cache=True, nogil=True)
