@@ -337,3 +337,21 @@ def test_ros1_bag_with_old_roslib_header_definition(tmp_path):
         (topic, t, decode, where), = list(logs.raw(["/ping"]))
         m = decode()
     assert (m.level, m.header.frame_id, m.header.stamp.sec, m.header.stamp.nanosec) == (4, "base", 5, 7)
+
+
+@pytest.mark.parametrize("k", [
+    [0.0, 0, 320, 0, 0.0, 240, 0, 0, 1],  # an uncalibrated camera's all-zero K
+    [float("nan"), 0, 320, 0, 500.0, 240, 0, 0, 1],
+    [500.0, 0, 320, 0, float("inf"), 240, 0, 0, 1],
+    [500.0, 0, float("nan"), 0, 500.0, 240, 0, 0, 1],
+])  # fmt: skip
+def test_depth_camera_info_without_a_usable_calibration_is_refused(k):
+    from types import SimpleNamespace
+
+    from ltmap_cli.io.decode import _checked_intrinsics
+
+    info = SimpleNamespace(k=k, width=640, height=480)
+    with pytest.raises(LogReadError, match="uncalibrated"):
+        _checked_intrinsics(info, (480, 640), "at 1.0 s")
+    ok = SimpleNamespace(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1], width=640, height=480)
+    assert _checked_intrinsics(ok, (480, 640), "at 1.0 s").fx == 500.0

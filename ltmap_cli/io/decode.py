@@ -170,8 +170,11 @@ def _checked_intrinsics(info: Any, shape: tuple[int, int], where: str) -> Camera
     elif (intr.width, intr.height) != (w, h):
         raise LogReadError(f"depth Image {where} is {w}x{h} but its CameraInfo says "
                            f"{intr.width}x{intr.height}; pair it with the right camera_info topic")
-    if intr.fx <= 0 or intr.fy <= 0:
+    if not (0 < intr.fx < np.inf and 0 < intr.fy < np.inf):  # (NaN fails too)
         raise LogReadError(f"CameraInfo for depth Image {where} has focal lengths fx={intr.fx}, fy={intr.fy}; "
+                           f"the camera is uncalibrated and its depth cannot be placed")
+    if not (np.isfinite(intr.cx) and np.isfinite(intr.cy)):
+        raise LogReadError(f"CameraInfo for depth Image {where} has principal point cx={intr.cx}, cy={intr.cy}; "
                            f"the camera is uncalibrated and its depth cannot be placed")
     return intr
 
