@@ -228,3 +228,40 @@ def test_projection_listed_in_chunks_is_the_same(monkeypatch):
     chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     assert len(whole.keys) > 7 * 3
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_depth_images_hit_the_same_voxels(seed):
+    """Seeded random depth images (a wall, boxes at random depths, holes, pixels beyond max range,
+    both encodings) from random poses: one frame into an empty map marks the same occupied voxels
+    in both modes (hits go first and a miss never clears a voxel the frame hit), projective frees
+    nothing beyond the 8 m range, and it frees at least 90 % of what exact frees."""
+    rng = np.random.default_rng(seed)
+    depth = rng.normal(4000, 30, (H, W)).clip(1, 65535)
+    for _ in range(rng.integers(1, 6)):
+        v0, u0 = rng.integers(0, H - 10), rng.integers(0, W - 10)
+        depth[v0:v0 + rng.integers(5, 60), u0:u0 + rng.integers(5, 80)] = rng.uniform(300, 9500)
+    depth[rng.random((H, W)) < 0.05] = 0  # holes
+    if seed % 2:
+        img = (depth / 1000.0).astype(np.float32)
+        img[img == 0] = np.nan
+    else:
+        img = depth.astype(np.uint16)
+    yaw, pitch = rng.uniform(-np.pi, np.pi), rng.uniform(-0.4, 0.4)
+    cy_, sy_, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    R_world = np.array([[cy_, -sy_, 0], [sy_, cy_, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    pose = np.eye(4)
+    pose[:3, :3] = R_world @ POSE[:3, :3]
+    pose[:3, 3] = rng.uniform(-2, 2, 3) + [0, 0, 1.5]
+    maps = {}
+    for mode in ("exact", "projective"):
+        m = _map(mode)
+        m.integrate_depth(img, F, F, CX, CY, pose, 8.0)
+        maps[mode] = m
+    occ = {mode: {tuple(k) for k in m.O.voxels_where(m.O.channel("logodds") > 0)} for mode, m in maps.items()}
+    assert occ["exact"] == occ["projective"] and len(occ["exact"]) > 100
+    free = {mode: {tuple(k) for k in m.O.voxels_where(m.O.channel("logodds") < 0)} for mode, m in maps.items()}
+    keys = np.array(sorted(free["projective"]))
+    dist = np.linalg.norm((keys + 0.5) * 0.05 - pose[:3, 3], axis=1)
+    assert dist.max() < 8.0 + 0.1
+    assert len(free["exact"] & free["projective"]) / len(free["exact"]) > 0.9
