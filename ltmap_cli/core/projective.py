@@ -45,7 +45,8 @@ def depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band):
     ``max_range`` (a return beyond it clears up to there), minus ``band``; -1 - band where the
     pixel is invalid (16UC1: 0; 32FC1: NaN, inf or <= 0). The tiles: the least and greatest
     range (not minus band) over each TILE x TILE tile and over 2 x 2 of those and so on (``LEVELS``
-    levels), and the greatest over the 3 x 3 tiles around each, at levels 0 and 1. The camera-frame arithmetic of ``depth_image_rays``."""
+    levels), and the greatest over the 3 x 3 tiles of 2 TILE pixels around each of those. The
+    camera-frame arithmetic of ``depth_image_rays``."""
     h, w = depth.shape
     out = np.empty((h, w), dtype=np.float32)
     th, tw = (h + TILE - 1) // TILE, (w + TILE - 1) // TILE
@@ -80,16 +81,15 @@ def depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band):
         for u in range(w):
             row[u] -= np.float32(band)
     pmax = _pyramid(tmax, True)
-    dil = np.empty((2, th, tw), dtype=np.float32)  # the greatest range over the 3 x 3 tiles around, levels 0 and 1
-    for lv in range(2):
-        nh, nw = (th + (1 << lv) - 1) >> lv, (tw + (1 << lv) - 1) >> lv
-        for a in range(nh):
-            for b in range(nw):
-                m = np.float32(-1.0)
-                for da in range(max(a - 1, 0), min(a + 2, nh)):
-                    for db in range(max(b - 1, 0), min(b + 2, nw)):
-                        m = max(m, pmax[lv, da, db])
-                dil[lv, a, b] = m
+    nh, nw = (th + 1) >> 1, (tw + 1) >> 1
+    dil = np.empty((nh, nw), dtype=np.float32)  # the greatest range over the 3 x 3 level-1 tiles around
+    for a in range(nh):
+        for b in range(nw):
+            m = np.float32(-1.0)
+            for da in range(max(a - 1, 0), min(a + 2, nh)):
+                for db in range(max(b - 1, 0), min(b + 2, nw)):
+                    m = max(m, pmax[1, da, db])
+            dil[a, b] = m
     return out, _pyramid(tmin, False), pmax, dil
 
 
@@ -291,7 +291,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                                     r = np.float64(r) - band
                                     rim = r > 0.0 and r * r > d2
                                 elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
-                                    r = np.float64(dil[1, (vi // TILE) >> 1, (ui // TILE) >> 1]) - band
+                                    r = np.float64(dil[(vi // TILE) >> 1, (ui // TILE) >> 1]) - band
                                     rim = r > 0.0 and r * r > d2
                             else:  # outside the image: its rim too, unless within half a voxel of it
                                 rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
