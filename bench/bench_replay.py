@@ -362,7 +362,7 @@ def main() -> None:
               f"{c['identical']} (log-odds, D and known voxels: {c['map_identical']}), IoU O {c['iou_O']:.4f}, "
               f"LT {c['iou_LT']:.4f}, P {c['iou_P']}")  # fmt: skip
     for n in results:
-        if n.startswith("rate") and ref in results:
+        if (n.startswith("rate") or n == "projective") and ref in results:
             c = compare(results[ref], results[n])
             print(f"{n} vs {ref}: speed ratio {results[n]['speed'] / results[ref]['speed']:.2f}x, "
                   f"IoU of occupied voxels O {c['iou_O']:.4f}, LT {c['iou_LT']:.4f}, P cells {c['iou_P']:.4f} "
