@@ -41,6 +41,7 @@ from .projective import (
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_range_image,
+    ends_box,
     projective_blocks,
     projective_keys,
 )
@@ -748,12 +749,7 @@ class LayeredMap:
                                                    float(max_range), band)  # fmt: skip
         R, t = T[:3, :3], T[:3, 3]
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
-        inv_res = 1.0 / self.resolution
-        lo, hi = t.copy(), t.copy()
-        if len(ends):
-            lo = np.minimum(lo, ends.min(axis=0))
-            hi = np.maximum(hi, ends.max(axis=0))
-        box = np.concatenate([np.floor(lo * inv_res), np.floor(hi * inv_res)]).astype(np.int64)
+        box = ends_box(np.ascontiguousarray(t), ends, 1.0 / self.resolution)
         # blocks with misses, in chunks (memory follows the frustum's free space, not the box: a
         # box at 0.01 m holds millions of blocks)
         nb = int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1))

@@ -35,6 +35,27 @@ TAIL_OVERLAP_VOXELS = 2
 PROJECTIVE_CHUNK_BLOCKS = 1 << 14  # blocks with misses listed per call of projective_blocks (1.2 MB)
 
 
+@njit(cache=True, nogil=True)
+def ends_box(origin, ends, inv_res):
+    """[i0, j0, k0, i1, j1, k1]: the voxel keys' box (inclusive) of the origin and the rays'
+    ends (one pass; numpy's ``min(axis=0)`` over an (N, 3) array took about 0.5 ms a frame)."""
+    lo = np.empty(3)
+    hi = np.empty(3)
+    for a in range(3):
+        lo[a] = origin[a]
+        hi[a] = origin[a]
+    for r in range(ends.shape[0]):
+        for a in range(3):
+            x = ends[r, a]
+            lo[a] = min(lo[a], x)
+            hi[a] = max(hi[a], x)
+    box = np.empty(6, dtype=np.int64)
+    for a in range(3):
+        box[a] = np.int64(np.floor(lo[a] * inv_res))
+        box[3 + a] = np.int64(np.floor(hi[a] * inv_res))
+    return box
+
+
 TILE = 8  # pixels per side of the tiles whose min / max range bound whole blocks and voxel rims
 
 
