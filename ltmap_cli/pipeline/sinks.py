@@ -67,6 +67,8 @@ class RunState:
         self.trajectory: list[tuple[float, float, float]] = []  # (t_s, x, y) of the robot per frame
         self._p_key: tuple | None = None
         self._p: Projection | None = None
+        self._lt_key: tuple | None = None
+        self._lt: tuple[np.ndarray, Projection] | None = None
         self._footprint = FootprintTrace(cfg.map.projection.footprint_radius, lmap.resolution)
 
     def p_now(self) -> Projection:
@@ -77,6 +79,15 @@ class RunState:
             cells = self._footprint.update(self.trajectory)
             self._p_key, self._p = key, project(self.lmap, footprint=cells)
         return self._p
+
+    def lt_now(self) -> tuple[np.ndarray, Projection]:
+        """LT as it is now: its occupied voxel keys (N, 3) and its projection alone (no S), made
+        once per map state for the sinks that publish, save, group and draw it."""
+        key = (self.lmap.frame_id, self.lmap.tick_index)
+        if self._lt_key != key:
+            self._lt_key = key
+            self._lt = (self.lmap.occupied_keys("LT"), project(self.lmap, use_static=False))
+        return self._lt
 
     def grid_now(self) -> GridMap:
         p = self.p_now()
@@ -221,9 +232,8 @@ class McapSink(Sink):
         self.published = (sig, p.data)
         self.p_latest = p
         w.write_grid("/map", stamp_ns, p.data, p.resolution, p.origin, frame)
-        lt = project(lmap, use_static=False)
+        keys, lt = run.lt_now()
         w.write_grid("/long_term_map", stamp_ns, lt.data, lt.resolution, lt.origin, frame)
-        keys = lmap.occupied_keys("LT")
         w.write_cloud("/ltmap/occupied_voxels", stamp_ns, coord_to_pos(keys, lmap.resolution), frame,
                       values=lmap.values("LT", keys), value_name="long_term")  # fmt: skip
         self.dirty = False
@@ -309,7 +319,7 @@ class MapsSink(Sink):
             written[name] = str(run.final / f"{name}.yaml")
 
         save("map", run.p_now(), cfg.replay.mode)
-        save("long_term", project(lmap, use_static=False), cfg.replay.mode)
+        save("long_term", run.lt_now()[1], cfg.replay.mode)
         if lmap.static is not None:
             save("static", project(lmap, use_lt=False, use_o_free=False), "trinary")
         return {"outputs": written}
@@ -378,7 +388,7 @@ class EventsSink(Sink):
         clock = self.ticker.analysis_clock(run.log_start_ns)
         pc = cfg.map.projection
         k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, lmap.resolution)
-        lt_keys = lmap.occupied_keys("LT")
+        lt_keys = run.lt_now()[0]
         final_cols = lt_keys[(lt_keys[:, 2] >= k_lo) & (lt_keys[:, 2] <= k_hi), :2]
         rc = cfg.replay
         filtered: dict = {}
@@ -459,7 +469,7 @@ class PlotsSink(Sink):
             shown = "in P" if e["kind"] == "appear" else "out of P"
             h["marks"] = {k: v for k, v in ((first, e["t_start_s"]), (shown, e["t_in_map_s"]),
                                             ("path changed", e.get("t_plan_change_s"))) if v is not None}  # fmt: skip
-        keys = lmap.occupied_keys("LT")
+        keys = run.lt_now()[0]
         static_keys = lmap.static.voxel_keys() if lmap.static is not None else None
         traj = np.array([(x, y) for _, x, y in run.trajectory]) if run.trajectory else None
         lay = cfg.map.layers
