@@ -36,7 +36,13 @@ def fraction_on_walls(xy: np.ndarray, walls: GridMap, cells: int = 2) -> float:
 def wall_distance(xy: np.ndarray, walls: GridMap) -> np.ndarray:
     """Distance (m) of each point (N, 2) to the centre of the nearest occupied cell of ``walls``."""
     w = occupied_centres(walls)
-    return np.array([float(np.min(np.hypot(w[:, 0] - p[0], w[:, 1] - p[1]))) for p in xy])
+    xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    out = np.empty(len(xy))
+    step = max(1, (1 << 22) // max(len(w), 1))  # points per chunk: at most 4 M distances at a time
+    for a in range(0, len(xy), step):
+        p = xy[a:a + step]
+        out[a:a + step] = np.sqrt(((p[:, None, :] - w[None, :, :]) ** 2).sum(-1).min(axis=1))
+    return out
 
 
 def raster(xy: np.ndarray, resolution: float) -> np.ndarray:
