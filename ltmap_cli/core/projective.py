@@ -143,13 +143,14 @@ def _pyramid(t0, use_max):
 @njit(cache=True, nogil=True)
 def _tiles_query(pyr, u0, u1, v0, v1, use_max):
     """The greatest (or least) range over pixels [u0, u1] x [v0, v1] (clipped to the image),
-    bounded from the pyramid: over at most 3 x 3 tiles of the finest level whose tiles cover the
-    rectangle in 2 of them per axis (the tiles may reach beyond it: a looser, safe bound)."""
+    bounded from the pyramid: over at most 9 x 9 tiles of the finest level whose tiles cover the
+    rectangle in 8 of them per axis (the tiles may reach beyond it: a looser, safe bound; 8 rather
+    than 2 culls a tenth more of the room's quarters for the reads)."""
     _, th, tw = pyr.shape
     t0, t1 = max(np.int64(u0) // TILE, 0), min(np.int64(u1) // TILE, tw - 1)
     s0, s1 = max(np.int64(v0) // TILE, 0), min(np.int64(v1) // TILE, th - 1)
     lv = 0
-    while lv < LEVELS - 1 and (t1 - t0 >= 2 or s1 - s0 >= 2):
+    while lv < LEVELS - 1 and (t1 - t0 >= 8 or s1 - s0 >= 8):
         lv += 1
         t0, t1, s0, s1 = t0 >> 1, t1 >> 1, s0 >> 1, s1 >> 1
     m = np.float32(-1.0) if use_max else np.float32(np.inf)
