@@ -47,6 +47,14 @@ def pack_block(bx, by, bz):
 
 
 @njit(cache=True, inline="always")
+def unpack_block(packed):
+    """(bx, by, bz) of ``pack_block``'s int64 (voxel keys are packed the same way)."""
+    m = (np.int64(1) << _PACK_BITS) - 1
+    return ((packed >> (2 * _PACK_BITS)) - _PACK_OFFSET, ((packed >> _PACK_BITS) & m) - _PACK_OFFSET,
+            (packed & m) - _PACK_OFFSET)  # fmt: skip
+
+
+@njit(cache=True, inline="always")
 def _slot(packed, mask):
     h = np.uint64(packed) * np.uint64(0x9E3779B97F4A7C15)
     h ^= h >> np.uint64(31)

@@ -598,7 +598,7 @@ def _depth_view(depth: np.ndarray) -> tuple[np.ndarray, bool]:
         return depth, True
     if depth.dtype == np.float32:
         return depth, False
-    raise CoreError(f"depth_rays: depth must be uint16 (mm) or float32 (m), got {depth.dtype}")
+    raise CoreError(f"a depth image must be uint16 (mm) or float32 (m), got {depth.dtype}")
 
 
 class LayeredMap:
@@ -633,7 +633,7 @@ class LayeredMap:
         self._fq_vid = np.empty(1 << 16, dtype=np.int64)
         self._fq_due = np.empty(1 << 16, dtype=np.int32)
         self._fq_meta = np.zeros(3, dtype=np.int64)
-        self._proj_buffer = np.empty(1 << 18, dtype=np.int64)  # projective misses, applied in batches
+        self._proj_buffer: np.ndarray | None = None  # projective misses, applied in batches (made at first use)
 
     # -- static layer -------------------------------------------------------------------------
     def set_static(self, static: StaticGrid | None) -> None:
@@ -871,6 +871,8 @@ class LayeredMap:
         q.ch_meta[0] = 0
         self._apply(q, hits, misses, 0, counters)
         if projection is not None:  # the misses the projection makes (core.projective), in batches
+            if self._proj_buffer is None:
+                self._proj_buffer = np.empty(1 << 18, dtype=np.int64)
             buf = self._proj_buffer
             nxt = 0
             while nxt >= 0:

@@ -5,30 +5,27 @@ times (a 640x480 frame of a room seen along its length: 3.5 M steps for 250 k di
 With ``map.sensor.depth_integration: projective`` a depth frame is integrated in two parts:
 
 - near its returns, exactly as before: every ray (one per end voxel) is walked by the DDA over
-  its last ``band + overlap`` metres only (``core.raycast.frame_voxels`` with ``tail``), so the
-  hits, and the misses of the voxels next to surfaces, are those of the exact traversal;
-- farther in front of the returns, by projection: a voxel whose centre lies in the frustum,
-  projects onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the
-  camera than that pixel's range minus ``band`` is a miss (``projective_misses``). Blocks of O that
-  are quiet (all clamped free, no ST or LT: a miss there changes nothing) are skipped whole, and
-  blocks outside the frustum's planes are skipped by a sphere test, so the voxels visited are
-  those of the frustum's non-quiet blocks, each once.
+  its last ``band`` + ``TAIL_OVERLAP_VOXELS`` only (``core.raycast.frame_voxels`` with ``tail``),
+  so the hits, and the misses of the voxels next to surfaces, are those of the exact traversal;
+- farther in front of the returns, by projection: a voxel of the frustum whose centre projects
+  onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the camera than
+  that pixel's range minus ``band``, or one of the pixels at the rim of its projection is, is a
+  miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). It reads no map
+  state, so the worker threads run it; ``projective_keys`` then lists the misses in the thread
+  that owns the map, in frame order, skipping quiet O blocks (all clamped free, no ST or LT: a
+  miss there changes nothing).
 
 It differs from the exact traversal only in free space farther than ``band`` from a return
-(voxels a ray passes but whose centre projects onto a nearer pixel, at occluding edges and the
-image's borders, and voxels between the cast rays that no ray passes): there it decides free
-versus unknown, not what is occupied near a surface. Reads the map's block table and quiet flags:
-it runs in the thread that owns the map, in frame order (``LayeredMap.apply_voxels``).
+(voxels a ray passes but whose centre and rim project onto nearer pixels, voxels beyond the
+image's border that a border ray grazes, and voxels between the cast rays that no ray passes):
+there it decides free versus unknown, not what is occupied near a surface.
 """
-
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-from .grid import _PACK_BITS, _PACK_OFFSET, BLOCK, BLOCK_BITS, find_block, pack_block
-
-KEY_MASK = (1 << _PACK_BITS) - 1
+from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -38,7 +35,7 @@ PROJECTIVE_CHUNK_BLOCKS = 1 << 14  # blocks with misses listed per call of proje
 @njit(cache=True, nogil=True)
 def ends_box(origin, ends, inv_res):
     """[i0, j0, k0, i1, j1, k1]: the voxel keys' box (inclusive) of the origin and the rays'
-    ends (one pass; numpy's ``min(axis=0)`` over an (N, 3) array took about 0.5 ms a frame)."""
+    ends (one pass; numpy's ``min`` / ``max(axis=0)`` over the (N, 3) ends took about 1 ms a frame)."""
     lo = np.empty(3)
     hi = np.empty(3)
     for a in range(3):
@@ -347,10 +344,7 @@ def projective_keys(keys, masks, n, start, table_keys, table_vals, quiet, use_qu
     for t in range(start, n):
         if cap - m < BLOCK * BLOCK * BLOCK:
             return m, t
-        packed = keys[t]
-        bi = (packed >> 42) - _PACK_OFFSET
-        bj = ((packed >> 21) & KEY_MASK) - _PACK_OFFSET
-        bk = (packed & KEY_MASK) - _PACK_OFFSET
+        bi, bj, bk = unpack_block(keys[t])
         if use_quiet:
             ob = find_block(table_keys, table_vals, bi, bj, bk)
             if ob >= 0 and quiet[ob] != 0:

@@ -28,14 +28,13 @@ import numpy as np
 from numba import njit
 
 from .grid import (
-    _PACK_BITS,
-    _PACK_OFFSET,
     BLOCK_BITS,
     BLOCK_VOXELS,
     _slot,
     find_block,
     get_or_add_block,
     pack_block,
+    unpack_block,
     voxel_offset,
 )
 
@@ -102,10 +101,8 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
     return ends, kind
 
 
-# voxel keys are packed as block coordinates are (grid.pack_block: 3 x 21 bits, each + 2^20;
-# keys within +-core.layers.KEY_LIMIT)
-KEY_OFFSET = _PACK_OFFSET
-KEY_MASK = (1 << _PACK_BITS) - 1
+# voxel keys are packed as block coordinates are (grid.pack_block / unpack_block: 3 x 21 bits,
+# each + 2^20; keys within +-core.layers.KEY_LIMIT)
 SEEN_PAD = 4  # the dense bitmap's box: the ends and the origin, and this many voxels around
 
 
@@ -443,9 +440,7 @@ def apply_voxels_kernel(
         n_done = 0
         for r in range(start, keys.shape[0]):
             key = keys[r]
-            i = (key >> 42) - KEY_OFFSET
-            j = ((key >> 21) & KEY_MASK) - KEY_OFFSET
-            k = (key & KEY_MASK) - KEY_OFFSET
+            i, j, k = unpack_block(key)
             bx, by, bz = i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS
             if bx != last_bx or by != last_by or bz != last_bz or last_b < 0:
                 last_b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
