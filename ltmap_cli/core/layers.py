@@ -794,14 +794,22 @@ class LayeredMap:
         """Fuse one depth image (raw pixels, as ``depth_rays`` takes them) into O as the replay
         does, by ``map.sensor.depth_integration``: exact (every ray walked whole) or projective
         (``depth_projection``: the rays' tails and the projection)."""
-        sc = self.cfg.sensor
         T = np.ascontiguousarray(T, dtype=np.float64)
-        ends, kind = self.depth_rays(depth, fx, fy, cx, cy, T, max_range, robot_pose, dedupe=sc.dedupe_dense)
-        if sc.depth_integration != "projective":
-            return self.integrate_rays(T[:3, 3], ends, kind)
-        projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
-        hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
+        ends, kind = self.depth_rays(depth, fx, fy, cx, cy, T, max_range, robot_pose,
+                                     dedupe=self.cfg.sensor.dedupe_dense)  # fmt: skip
+        hits, misses, projection = self.depth_voxels(depth, fx, fy, cx, cy, T, max_range, ends, kind)
         return self.apply_voxels(hits, misses, int((kind > 0).sum()), projection)
+
+    def depth_voxels(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
+                     max_range: float, ends: np.ndarray, kind: np.ndarray):
+        """The cast half of a depth image whose rays are (``ends``, ``kind``), by
+        ``map.sensor.depth_integration``: (hits, misses, projection) for ``apply_voxels``; exact:
+        whole rays, no projection; projective: the rays' tails and ``depth_projection``. Reads no
+        map state (a worker thread's part)."""
+        if self.cfg.sensor.depth_integration != "projective":
+            return (*self.frame_voxels(T[:3, 3], ends, kind), None)
+        projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
+        return (*self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail()), projection)
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
         """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(frame_voxels(...))``."""

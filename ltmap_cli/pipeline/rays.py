@@ -61,15 +61,14 @@ class FrameCaster:
             ends, kind = self.cloud_rays(frame, T, robot)
         else:  # pragma: no cover - the reader yields only these
             raise TypeError(type(frame).__name__)
-        projection, tail = None, 0.0
-        if self.sensor.depth_integration == "projective" and isinstance(frame, (DepthFrame, RawDepthFrame)):
+        t1 = time.perf_counter()
+        if isinstance(frame, (DepthFrame, RawDepthFrame)):  # by map.sensor.depth_integration
             k = frame.intrinsics
             depth = frame.raw if isinstance(frame, RawDepthFrame) else frame.depth_m
-            projection = self.lmap.depth_projection(depth, k.fx, k.fy, k.cx, k.cy, T, self.sensor.depth_max_range,
-                                                    ends)  # fmt: skip
-            tail = self.lmap.projective_tail()
-        t1 = time.perf_counter()
-        hits, misses = self.lmap.frame_voxels(T[:3, 3], ends, kind, tail)
+            hits, misses, projection = self.lmap.depth_voxels(depth, k.fx, k.fy, k.cx, k.cy, T,
+                                                              self.sensor.depth_max_range, ends, kind)  # fmt: skip
+        else:
+            (hits, misses), projection = self.lmap.frame_voxels(T[:3, 3], ends, kind), None
         return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped,
                          projection)  # fmt: skip
 
