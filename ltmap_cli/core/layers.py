@@ -885,8 +885,8 @@ class LayeredMap:
             nxt = 0
             while nxt >= 0:
                 o = self.O
-                n, nxt = projective_keys(projection.keys, projection.masks, len(projection.keys), nxt, o.table_keys,
-                                         o.table_vals, q.quiet, self.quiet_blocks, buf)  # fmt: skip
+                n, nxt = projective_keys(projection.keys, projection.masks, nxt, o.table_keys, o.table_vals, q.quiet,
+                                         self.quiet_blocks, buf)  # fmt: skip
                 self._apply(q, hits[:0], buf[:n], 1, counters)
         if self.quiet_blocks and q.ch_meta[0]:
             q.update(self, int(q.ch_meta[0]))

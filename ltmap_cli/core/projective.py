@@ -334,14 +334,14 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
 
 
 @njit(cache=True, nogil=True)
-def projective_keys(keys, masks, n, start, table_keys, table_vals, quiet, use_quiet, out):
-    """The misses of ``projective_blocks``' blocks ``start`` .. ``n - 1`` as packed voxel keys
+def projective_keys(keys, masks, start, table_keys, table_vals, quiet, use_quiet, out):
+    """The misses of ``projective_blocks``' blocks from ``start`` on as packed voxel keys
     into ``out``, skipping quiet O blocks (``use_quiet``: a miss there changes nothing). Returns
     (keys written, the block to go on from: -1 when done); stops before a block when fewer than
     512 slots are left. Reads the map: the thread that owns it, in frame order."""
     cap = out.shape[0]
     m = 0
-    for t in range(start, n):
+    for t in range(start, keys.shape[0]):
         if cap - m < BLOCK * BLOCK * BLOCK:
             return m, t
         bi, bj, bk = unpack_block(keys[t])
