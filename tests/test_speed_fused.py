@@ -160,6 +160,33 @@ def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
         assert 0 < len(k2) < (raw > 0).sum()
 
 
+def test_fused_depth_kernel_dedupe_set_sized_by_the_previous_frame():
+    """The dedupe set starts at the size the thread's previous frame needed: a frame with far
+    more end voxels than that is done again with a bigger set, one with far fewer uses a set
+    bigger than it needs; either way the rays are the serial steps'."""
+    from ltmap_cli.core.raycast import DEPTH_CAP_MIN, depth_rays_cap
+
+    assert depth_rays_cap(0) == DEPTH_CAP_MIN and depth_rays_cap(24_488) == 1 << 17
+    rng = np.random.default_rng(13)
+    h, w = 240, 320
+    lmap = LayeredMap()
+    for scale in (1.0, 0.02, 1.0, 1.0):  # noise over 9 m (tens of thousands of end voxels), then a flat few
+        raw = (2000 + scale * rng.uniform(0, 7000, size=(h, w))).astype(np.uint16)
+        depth = raw.astype(np.float32) * np.float32(0.001)
+        T = _pose(rng)
+        pts = depth_to_points(depth, 250.0, 250.0, 159.5, 119.5)
+        e1, k1 = lmap.rays(T[:3, 3], transform_points(T, pts), None, 10.0, None, True)
+        cap = getattr(lmap._scratch, "depth_cap", DEPTH_CAP_MIN)
+        e2, k2 = lmap.depth_rays(raw, 250.0, 250.0, 159.5, 119.5, T, 10.0, None, True)
+        keep = k1 > 0
+        assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+        assert lmap._scratch.depth_cap == depth_rays_cap(len(k2))
+        if scale == 1.0 and cap == DEPTH_CAP_MIN:
+            assert 2 * len(k2) > cap  # this frame overflowed the first set: the second pass ran
+        if scale == 0.02:
+            assert 4 * len(k2) < cap  # and this one ran in a set sized for the frame before
+
+
 def test_fused_depth_kernel_big_endian_and_strided():
     rng = np.random.default_rng(11)
     raw = rng.uniform(300, 5000, size=(40, 60)).astype(np.uint16)

@@ -46,6 +46,7 @@ from .projective import (
     projective_keys,
 )
 from .raycast import (
+    DEPTH_CAP_MIN,
     FV_HITS,
     FV_MISSES,
     FV_PHASE,
@@ -70,6 +71,7 @@ from .raycast import (
     classify_rays,
     dedupe_endpoints,
     depth_image_rays,
+    depth_rays_cap,
     frame_voxels,
     quiet_count,
     quiet_update,
@@ -732,11 +734,14 @@ class LayeredMap:
             reach = float(fin.max()) * 4.0 if len(fin) else 0.0
         check_extent(T[:3, 3], reach + self.resolution, self.resolution, "depth camera")
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
-        return depth_image_rays(
+        scratch = self._scratch  # this thread's dedupe set size, from its previous frame
+        ends, kind = depth_image_rays(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(T, dtype=np.float64),
             float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
-            bool(dedupe), 1.0 / self.resolution,
+            bool(dedupe), 1.0 / self.resolution, np.int64(getattr(scratch, "depth_cap", DEPTH_CAP_MIN)),
         )  # fmt: skip
+        scratch.depth_cap = depth_rays_cap(len(kind))
+        return ends, kind
 
     def depth_projection(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
                          max_range: float, ends: np.ndarray) -> DepthProjection:
