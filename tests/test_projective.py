@@ -265,3 +265,46 @@ def test_random_depth_images_hit_the_same_voxels(seed):
     dist = np.linalg.norm((keys + 0.5) * 0.05 - pose[:3, 3], axis=1)
     assert dist.max() < 8.0 + 0.1
     assert len(free["exact"] & free["projective"]) / len(free["exact"]) > 0.9
+
+
+@pytest.mark.parametrize("shape", [(120, 160), (37, 61), (5, 3)])
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_range_image_and_tiles_against_numpy(shape, encoding):
+    """``depth_range_image``: per pixel the range along its ray cut at max_range, minus the band
+    (-1 - band where invalid), and per 8 x 8 tile (the last row and column of tiles partial when
+    the image is not a multiple of 8) the least and greatest range, and up the pyramid, 2 x 2
+    tiles of the level below."""
+    from ltmap_cli.core.layers import _depth_view
+    from ltmap_cli.core.projective import TILE, depth_range_image
+
+    h, w = shape
+    rng = np.random.default_rng(h * w)
+    z = rng.uniform(0.3, 12.0, size=shape)
+    holes = rng.random(shape) < 0.1
+    if encoding == "16UC1":
+        raw = np.round(z * 1000).astype(np.uint16)
+        raw[holes] = 0
+        zf = raw.astype(np.float32) * np.float32(0.001)
+    else:
+        raw = z.astype(np.float32)
+        raw[holes] = np.nan
+        raw[0, 0] = -1.0  # <= 0: invalid
+        zf = raw
+    valid = np.isfinite(zf) & (zf > 0)
+    f, cx, cy, band = 90.0, (w - 1) / 2 + 0.3, (h - 1) / 2 - 0.2, 0.2
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    r = np.minimum(zf.astype(np.float64) * np.sqrt(1 + ((u - cx) / f) ** 2 + ((v - cy) / f) ** 2), 8.0)
+    r = np.where(valid, r.astype(np.float32), np.float32(-1.0)).astype(np.float32)
+    depth, unit_mm = _depth_view(raw)
+    reach, tmin, tmax, _ = depth_range_image(depth, unit_mm, f, f, cx, cy, 8.0, band)
+    np.testing.assert_allclose(reach, r - np.float32(band), rtol=1e-6, atol=1e-6)
+    th, tw = -(-h // TILE), -(-w // TILE)
+    lo, hi = r.copy(), r.copy()
+    for lv in range(tmin.shape[0]):
+        want_lo = np.array([[lo[a * (TILE << lv):(a + 1) * (TILE << lv), b * (TILE << lv):(b + 1) * (TILE << lv)].min()
+                             for b in range(tw)] for a in range(th)])  # fmt: skip
+        want_hi = np.array([[hi[a * (TILE << lv):(a + 1) * (TILE << lv), b * (TILE << lv):(b + 1) * (TILE << lv)].max()
+                             for b in range(tw)] for a in range(th)])  # fmt: skip
+        np.testing.assert_allclose(tmin[lv, :th, :tw], want_lo, rtol=1e-6)
+        np.testing.assert_allclose(tmax[lv, :th, :tw], want_hi, rtol=1e-6)
+        th, tw = -(-th // 2), -(-tw // 2)
