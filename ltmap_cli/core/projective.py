@@ -172,25 +172,29 @@ CULLED, FRONT, MIXED = 0, 1, 2
 @njit(cache=True, nogil=True, error_model="numpy")
 def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
               planes, tmin, tmax):  # fmt: skip
-    """A cube of ``nvox`` voxels a side centred at (qx, qy, qz) (optical frame): CULLED when no
-    voxel of it can be a miss (outside the frustum's side planes, behind the camera, beyond every
-    range, or farther than every range its voxels and their rims project onto), FRONT when every
-    voxel is (nearer than every range its voxels' centres project onto, minus band), else MIXED."""
+    """(class, lo, hi) of a cube of ``nvox`` voxels a side centred at (qx, qy, qz) (optical
+    frame). Class: CULLED when no voxel of it can be a miss (outside the frustum's side planes,
+    behind the camera, beyond every range, or farther than every range its voxels and their rims
+    project onto), FRONT when every voxel is (nearer than every range its voxels' centres project
+    onto, minus band), else MIXED. For a MIXED cube, bounds on its voxels' tests: a voxel whose
+    centre is nearer than ``lo`` (> 0) is a miss (every range its centre can project onto, minus
+    band, is beyond it), one at ``hi`` or beyond is not (no range its centre or rim can project
+    onto, minus band, is beyond it)."""
     al, ar, at, ab, nl, nr, nt, nb = planes[0], planes[1], planes[2], planes[3], planes[4], planes[5], planes[6], planes[7]
     half = 0.5 * nvox * res
     rad = half * np.sqrt(3.0)  # the cube's bounding sphere
     if qz < -rad:
-        return CULLED
+        return CULLED, 0.0, 0.0
     if (qx - al * qz) * nl < -rad or (ar * qz - qx) * nr < -rad:
-        return CULLED
+        return CULLED, 0.0, 0.0
     if (qy - at * qz) * nt < -rad or (ab * qz - qy) * nb < -rad:
-        return CULLED
+        return CULLED, 0.0, 0.0
     dist = np.sqrt(qx * qx + qy * qy + qz * qz)
     if dist - rad >= far:
-        return CULLED
+        return CULLED, 0.0, 0.0
     zn = qz - rad
     if zn <= 0.05 * res:  # reaches the camera's plane: test its voxels
-        return MIXED
+        return MIXED, -1.0, np.inf
     k = 0.5 * nvox  # corner offsets in voxel steps
     u0, u1, v0, v1 = np.inf, -np.inf, np.inf, -np.inf
     for cnr in range(8):
@@ -203,12 +207,16 @@ def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res
         uu, vv = fx * xx / zz + cx, fy * yy / zz + cy
         u0, u1, v0, v1 = min(u0, uu), max(u1, uu), min(v0, vv), max(v1, vv)
     inside = u0 >= 0.0 and u1 < w - 1.0 and v0 >= 0.0 and v1 < h - 1.0
-    if inside and _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, False) - band > dist + rad:
-        return FRONT
+    lo = -1.0
+    if inside:
+        lo = _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, False) - band
+        if lo > dist + rad:
+            return FRONT, lo, np.inf
     rim = 0.5 * res * max(fx, fy) / zn + 1.0
-    if _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, True) - band <= dist - rad:
-        return CULLED
-    return MIXED
+    hi = _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, True) - band
+    if hi <= dist - rad:
+        return CULLED, lo, hi
+    return MIXED, lo, hi
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -265,7 +273,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
         py0 = Tinv[1, 0] * cx0 + Tinv[1, 1] * cy0 + Tinv[1, 2] * cz0 + Tinv[1, 3]
         pz0 = Tinv[2, 0] * cx0 + Tinv[2, 1] * cy0 + Tinv[2, 2] * cz0 + Tinv[2, 3]
         g = 0.5 * (BLOCK - 1)  # the block's centre, in voxel steps from voxel (0, 0, 0)
-        cls = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g, BLOCK,
+        cls, _, _ = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g, BLOCK,
                         ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h, planes,
                         tmin, tmax)  # fmt: skip
         if cls == CULLED:
@@ -282,27 +290,39 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
         for sub in range(8):  # the block's quarters (4 x 4 x 4)
             sa, sc, se = (sub >> 2) * Q, ((sub >> 1) & 1) * Q, (sub & 1) * Q
             g2 = 0.5 * (Q - 1)
-            qcls = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
+            qcls, qlo, qhi = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
                              py0 + ex1 * (sa + g2) + ey1 * (sc + g2) + ez1 * (se + g2),
                              pz0 + ex2 * (sa + g2) + ey2 * (sc + g2) + ez2 * (se + g2), Q,
                              ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h, planes,
                              tmin, tmax)  # fmt: skip
             if qcls == CULLED:
                 continue
+            if qcls == FRONT:  # all its 64 voxels: word a of the mask holds voxels (a, c, e) as bits c * 8 + e
+                found = True
+                pat = np.uint64(0)
+                for c in range(sc, sc + Q):
+                    pat |= np.uint64((1 << Q) - 1) << np.uint64(c * BLOCK + se)
+                for a in range(sa, sa + Q):
+                    masks[n, a] |= pat
+                continue
+            # (the bounds are the tiles' float64 range - band; a pixel's reach is float32 (range - band):
+            # a micrometre's margin covers the rounding)
+            qlo2 = (qlo - 1e-6) ** 2 if qlo > 1e-6 else -1.0
+            qhi2 = (qhi + 1e-6) ** 2 if qhi > -1e-6 else -1.0
             for a in range(sa, sa + Q):
                 for c in range(sc, sc + Q):
                     for e in range(se, se + Q):
-                        free = qcls == FRONT
-                        if not free:  # the voxel's centre in the optical frame, and its pixel
-                            x = px0 + a * ex0 + c * ey0 + e * ez0
-                            y = py0 + a * ex1 + c * ey1 + e * ez1
-                            z = pz0 + a * ex2 + c * ey2 + e * ez2
-                            if z <= 0.0:
-                                continue
+                        x = px0 + a * ex0 + c * ey0 + e * ez0  # the voxel's centre in the optical frame
+                        y = py0 + a * ex1 + c * ey1 + e * ez1
+                        z = pz0 + a * ex2 + c * ey2 + e * ez2
+                        d2 = x * x + y * y + z * z
+                        if z <= 0.0 or d2 >= qhi2:  # behind the camera, or beyond the quarter's bound
+                            continue
+                        free = d2 < qlo2  # nearer than the quarter's bound: a miss without a lookup
+                        if not free:  # its pixel
                             iz = 1.0 / z
                             uf = fx * x * iz + cx + 0.5
                             vf = fy * y * iz + cy + 0.5
-                            d2 = x * x + y * y + z * z
                             su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
                             rim = True  # test the pixels at the rim of its projection
                             if uf >= 0.0 and uf < w and vf >= 0.0 and vf < h:
