@@ -310,6 +310,9 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
     NH, NW = near.shape
     tick_index = s.tick_index
     st, lt, last_seen = d.st, d.lt, d.last_seen
+    # the D block of the last O block met (the buffer holds runs of one block): O block b and D
+    # block db have the same coordinates, so db depends on b alone, until this kernel adds it
+    last_b, last_db = np.int64(-1), np.int64(-1)
     for t in range(start, n_tb):
         if ev.tr_meta[0] >= ev.tr.shape[0] or ev.hist_meta[0] >= ev.hist_i.shape[0]:
             return t
@@ -327,7 +330,9 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
         if lo > 0.0 and not hit:  # held: only missed while O still says occupied
             hit_mark[b, off] = 0
             counters[C_HELD] += 1
-            db = find_block(d.keys, d.vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if b != last_b:
+                last_b, last_db = b, find_block(d.keys, d.vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            db = last_db
             if db >= 0:
                 doff = voxel_offset(i, j, k)
                 if last_seen[db, doff] >= 0:
@@ -339,8 +344,10 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
             if 0 <= r < NH and 0 <= c < NW and -s.static_margin <= k <= near[r, c]:
                 hit_mark[b, off] = 0
                 continue  # S's own: a wall seen where the static map has it
-            db = get_or_add_block(d.keys, d.vals, d.coords, d.meta, i >> BLOCK_BITS, j >> BLOCK_BITS,
-                                  k >> BLOCK_BITS)  # fmt: skip
+            if b != last_b or last_db < 0:
+                last_b, last_db = b, get_or_add_block(d.keys, d.vals, d.coords, d.meta, i >> BLOCK_BITS,
+                                                      j >> BLOCK_BITS, k >> BLOCK_BITS)  # fmt: skip
+            db = last_db
             if db < 0:
                 return t
             hit_mark[b, off] = 0
@@ -372,7 +379,9 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
         else:
             hit_mark[b, off] = 0
             counters[C_SEEN_FREE] += 1
-            db = find_block(d.keys, d.vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            if b != last_b:
+                last_b, last_db = b, find_block(d.keys, d.vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+            db = last_db
             if db < 0:
                 continue
             doff = voxel_offset(i, j, k)
@@ -414,13 +423,16 @@ def _queue_obstacles(tb_block, tb_off, n_tb, o_coords, d_keys, d_vals, last_obs,
     queue with ``due`` (the tick they are forgotten at unless seen again). Returns False when the
     queue must grow first (call again: entries already queued are not repeated)."""
     n = fq_meta[1]
+    last_b, last_db = np.int64(-1), np.int64(-1)  # the D block of the last O block met (as _tick_kernel)
     for t in range(fq_meta[2], n_tb):
         b = tb_block[t]
         off = tb_off[t]
         i = (np.int64(o_coords[b, 0]) << BLOCK_BITS) | ((off >> (2 * BLOCK_BITS)) & BLOCK_MASK)
         j = (np.int64(o_coords[b, 1]) << BLOCK_BITS) | ((off >> BLOCK_BITS) & BLOCK_MASK)
         k = (np.int64(o_coords[b, 2]) << BLOCK_BITS) | (off & BLOCK_MASK)
-        db = find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+        if b != last_b:
+            last_b, last_db = b, find_block(d_keys, d_vals, i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS)
+        db = last_db
         if db < 0:
             continue
         doff = voxel_offset(i, j, k)
