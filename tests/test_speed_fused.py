@@ -166,7 +166,9 @@ def test_fused_depth_kernel_dedupe_set_sized_by_the_previous_frame():
     bigger than it needs; either way the rays are the serial steps'."""
     from ltmap_cli.core.raycast import DEPTH_CAP_MIN, depth_rays_cap
 
-    assert depth_rays_cap(0) == DEPTH_CAP_MIN and depth_rays_cap(24_488) == 1 << 17
+    assert depth_rays_cap(0, 640 * 480) == DEPTH_CAP_MIN and depth_rays_cap(24_488, 640 * 480) == 1 << 17
+    # every pixel its own voxel: no bigger than the whole image needs (2 (pixels + 1) slots)
+    assert depth_rays_cap(640 * 480, 640 * 480) == 1 << 20 and depth_rays_cap(3000, 3000) == 1 << 15
     rng = np.random.default_rng(13)
     h, w = 240, 320
     lmap = LayeredMap()
@@ -180,7 +182,7 @@ def test_fused_depth_kernel_dedupe_set_sized_by_the_previous_frame():
         e2, k2 = lmap.depth_rays(raw, 250.0, 250.0, 159.5, 119.5, T, 10.0, None, True)
         keep = k1 > 0
         assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
-        assert lmap._scratch.depth_cap == depth_rays_cap(len(k2))
+        assert lmap._scratch.depth_cap == depth_rays_cap(len(k2), h * w)
         if scale == 1.0 and cap == DEPTH_CAP_MIN:
             assert 2 * len(k2) > cap  # this frame overflowed the first set: the second pass ran
         if scale == 0.02:

@@ -752,7 +752,7 @@ class LayeredMap:
             float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
             bool(dedupe), 1.0 / self.resolution, np.int64(getattr(scratch, "depth_cap", DEPTH_CAP_MIN)),
         )  # fmt: skip
-        scratch.depth_cap = depth_rays_cap(len(kind))
+        scratch.depth_cap = depth_rays_cap(len(kind), depth.size)
         return ends, kind
 
     def depth_projection(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,

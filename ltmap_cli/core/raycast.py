@@ -745,11 +745,13 @@ def depth_image_rays(
 DEPTH_CAP_MIN = 1 << 15  # the least dedupe set of depth_image_rays (slots)
 
 
-def depth_rays_cap(n_ends: int) -> int:
+def depth_rays_cap(n_ends: int, pixels: int) -> int:
     """The dedupe set for the frame after one that kept ``n_ends`` rays: a quarter full (the next
-    may keep twice as many without a second pass; a bigger set costs little, 2.25 -> 2.26 ms)."""
+    may keep twice as many without a second pass; a bigger set costs little, 2.25 -> 2.26 ms), and
+    no bigger than an image of ``pixels`` pixels can fill (a frame of noise, every pixel its own
+    voxel, must not make the next frames' sets 4x its pixels)."""
     cap = DEPTH_CAP_MIN
-    while 4 * n_ends > cap:
+    while 4 * n_ends > cap and cap < 2 * (pixels + 1):
         cap *= 2
     return cap
 
