@@ -308,3 +308,37 @@ def test_range_image_and_tiles_against_numpy(shape, encoding):
         np.testing.assert_allclose(tmin[lv, :th, :tw], want_lo, rtol=1e-6)
         np.testing.assert_allclose(tmax[lv, :th, :tw], want_hi, rtol=1e-6)
         th, tw = -(-th // 2), -(-tw // 2)
+
+
+@pytest.mark.parametrize("mode, band, z", [("hi", 0.2, 65.0), ("hi", 0.1, 40.0), ("hi", 0.2, 7.9), ("lo", 0.15, 40.0),
+                                           ("lo", 0.15, 33.3), ("lo", 0.2, 40.0)])  # fmt: skip
+def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
+    """A voxel whose centre's distance lies between its pixel's reach as computed (float32 range
+    - float32 band) and range - band in float64 (a micrometre apart at 40 m): it is a miss
+    exactly when the reach is beyond it, as the per-voxel test says, whatever bounds its quarter
+    takes (found by review: bounds with a fixed 1e-6 m margin got it wrong beyond 16 m). "hi":
+    only its pixel reaches that far; "lo": every pixel's depth is the same (beyond 25 m, where
+    the voxel's rim lies within its pixel: the pixels around have longer ranges)."""
+    from ltmap_cli.core.grid import pack_block, voxel_offset
+    from ltmap_cli.core.projective import depth_range_image, projective_blocks
+
+    res, f, k0 = 0.05, 500.0, 1000
+    z32 = np.float32(z)
+    reach = np.float64(np.float32(z32 - np.float32(band)))
+    exact = np.float64(z32) - band
+    assert (reach > exact) == (mode == "hi")
+    dist = 0.5 * (reach + exact)  # the voxel centre's distance from the camera
+    depth = np.full((15, 15), z32 if mode == "lo" else np.float32(z * 0.5), dtype=np.float32)
+    depth[7, 7] = z32  # the pixel the voxel (0, 0, k0) projects onto: its centre is on the optical axis
+    t = np.array([0.5 * res, 0.5 * res, (k0 + 0.5) * res - dist])
+    Tinv = np.ascontiguousarray(np.hstack([np.eye(3), -t[:, None]]))
+    img, tmin, tmax, dil = depth_range_image(depth, False, f, f, 7.0, 7.0, 0.0, band)
+    assert np.float64(img[7, 7]) == reach
+    box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
+    keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
+    n, nxt = projective_blocks(img, tmin, tmax, dil, f, f, 7.0, 7.0, Tinv, box, res, band, keys, masks, 0)
+    assert nxt == -1
+    blocks = {int(keys[q]): masks[q] for q in range(n)}
+    off = voxel_offset(0, 0, k0)
+    word = blocks.get(pack_block(0, 0, k0 >> 3), np.zeros(8, dtype=np.uint64))[off >> 6]
+    assert bool((int(word) >> (off & 63)) & 1) == (mode == "hi")

@@ -177,9 +177,10 @@ def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res
     behind the camera, beyond every range, or farther than every range its voxels and their rims
     project onto), FRONT when every voxel is (nearer than every range its voxels' centres project
     onto, minus band), else MIXED. For a MIXED cube, bounds on its voxels' tests: a voxel whose
-    centre is nearer than ``lo`` (> 0) is a miss (every range its centre can project onto, minus
-    band, is beyond it), one at ``hi`` or beyond is not (no range its centre or rim can project
-    onto, minus band, is beyond it)."""
+    centre is nearer than ``lo`` (> 0) is a miss (the reach of every pixel its centre can project
+    onto is beyond it), one at ``hi`` or beyond is not (no pixel its centre or rim can project
+    onto reaches beyond it); lo and hi are the least and greatest reach exactly, in
+    ``depth_range_image``'s float32 arithmetic."""
     al, ar, at, ab, nl, nr, nt, nb = planes[0], planes[1], planes[2], planes[3], planes[4], planes[5], planes[6], planes[7]
     half = 0.5 * nvox * res
     rad = half * np.sqrt(3.0)  # the cube's bounding sphere
@@ -207,16 +208,20 @@ def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res
         uu, vv = fx * xx / zz + cx, fy * yy / zz + cy
         u0, u1, v0, v1 = min(u0, uu), max(u1, uu), min(v0, vv), max(v1, vv)
     inside = u0 >= 0.0 and u1 < w - 1.0 and v0 >= 0.0 and v1 < h - 1.0
+    # lo and hi: the least and greatest reach of the pixels in the tiles, as depth_range_image
+    # computes reach (float32 range - float32 band: monotonic, so exactly the extremes)
+    fb = np.float32(band)
     lo = -1.0
     if inside:
-        lo = _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, False) - band
-        if lo > dist + rad:
-            return FRONT, lo, np.inf
+        rmin = _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, False)
+        if rmin - band > dist + rad:
+            return FRONT, -1.0, np.inf
+        lo = np.float64(np.float32(rmin) - fb)
     rim = 0.5 * res * max(fx, fy) / zn + 1.0
-    hi = _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, True) - band
-    if hi <= dist - rad:
-        return CULLED, lo, hi
-    return MIXED, lo, hi
+    rmax = _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, True)
+    if rmax - band <= dist - rad:
+        return CULLED, 0.0, 0.0
+    return MIXED, lo, np.float64(np.float32(rmax) - fb)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -305,10 +310,8 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                 for a in range(sa, sa + Q):
                     masks[n, a] |= pat
                 continue
-            # (the bounds are the tiles' float64 range - band; a pixel's reach is float32 (range - band):
-            # a micrometre's margin covers the rounding)
-            qlo2 = (qlo - 1e-6) ** 2 if qlo > 1e-6 else -1.0
-            qhi2 = (qhi + 1e-6) ** 2 if qhi > -1e-6 else -1.0
+            qlo2 = qlo * qlo if qlo > 0.0 else -1.0  # (a miss needs reach > 0)
+            qhi2 = qhi * qhi if qhi > 0.0 else -1.0
             for a in range(sa, sa + Q):
                 for c in range(sc, sc + Q):
                     for e in range(se, se + Q):
