@@ -11,7 +11,11 @@ default settings), each simulated once with ``ltmap simulate`` and cached under
   wall and yaws +-60 deg, the camera level (pitch 0) under a 2.6 m ceiling, so most rays are
   3 to 7.5 m long;
 - ``hall``: a 20 x 3 m hall seen along its length from one end (+-20 deg): every ray that does
-  not hit the floor, the ceiling or a side wall is cut at the 8 m depth range (a clear ray).
+  not hit the floor, the ceiling or a side wall is cut at the 8 m depth range (a clear ray);
+- ``office``: a scene not made for the projection: a cluttered 10 x 7 m office with a partition
+  (desks, chairs, a cabinet, a plant, a ball), driven through along waypoints, a person crossing,
+  a box taken away at 15 s, and another camera: wider (fx 385, as a RealSense D435), pitched
+  10 deg down, float metres (32FC1), noisier and quantized like a stereo camera.
 
 Per scene and configuration a fresh process replays the log (``ltmap_cli.pipeline.replay.Replay``,
 no plots) and prints: log seconds per wall second (``x real``), the process's CPU seconds for the
@@ -109,6 +113,51 @@ def hall_yaml() -> str:
     ])
 
 
+def office_yaml() -> str:
+    """A scene not made for the projection: a cluttered 10 x 7 m office with a partition, driven
+    through (not stood in), a person crossing, a box taken away at 15 s, and another camera: wider
+    (fx 385, about 80 deg, as a RealSense D435's 640x480 depth), pitched 10 deg down, float metres
+    (32FC1), noisier and quantized like a stereo camera."""
+    return "\n".join([
+        "# bench/bench_long_rays.py: a cluttered office driven through. Written by the bench.",
+        "name: bench-long-office",
+        "walls:",
+        "  - points: [[0, 0], [10, 0], [10, 7], [0, 7], [0, 0]]",
+        "    thickness: 0.1",
+        "  - points: [[6, 0], [6, 4]]",
+        "    thickness: 0.1",
+        "wall_height: 2.7",
+        "ceiling: 2.7",
+        f"duration: {DURATION:g}",
+        "seed: 19",
+        "robot:",
+        "  radius: 0.25",
+        "  odometry_drift: [0.002, 0.001, 0.05]",
+        "  path:",
+        "    waypoints:",
+        "      - {t: 0, x: 1.0, y: 1.0, yaw: 40}",
+        "      - {t: 10, x: 4.0, y: 5.5, yaw: 0}",
+        "      - {t: 20, x: 8.5, y: 5.5, yaw: -90}",
+        "      - {t: 30, x: 8.5, y: 1.2, yaw: -170}",
+        "sensors:",
+        "  laser: {beams: 720, fov: 360, range_max: 10, rate: 15, noise: 0.01, mount: {xyz: [0.15, 0, 0.25]}}",
+        "  depth: {mount: {xyz: [0.1, 0, 1.1]}, pitch: 10, width: 640, height: 480, fx: 385, rate: 30,",
+        "          noise: 0.004, quantization: 0.0025, range_max: 10, encoding: 32FC1}",
+        "objects:",
+        "  - {id: desk1, kind: table, pose: {x: 2.5, y: 6.2}, size: [1.6, 0.8, 0.74]}",
+        "  - {id: desk2, kind: table, pose: {x: 4.5, y: 6.2}, size: [1.6, 0.8, 0.74]}",
+        "  - {id: chair1, kind: chair, pose: {x: 2.5, y: 5.5, yaw: 90}}",
+        "  - {id: chair2, kind: chair, pose: {x: 4.6, y: 5.4, yaw: 80}}",
+        "  - {id: cabinet, kind: box, pose: {x: 9.6, y: 6.0}, size: [0.6, 1.2, 1.8]}",
+        "  - {id: boxes, kind: box, pose: {x: 3.0, y: 2.0, yaw: 25}, size: [0.5, 0.4, 0.5], present: [[0, 15]]}",
+        "  - {id: plant, kind: cylinder, pose: {x: 5.5, y: 0.6}, radius: 0.25, height: 1.2}",
+        "  - {id: ball, kind: sphere, pose: {x: 7.5, y: 3.0}, radius: 0.15}",
+        "people:",
+        "  - {id: ann, path: [{t: 5, x: 7.0, y: 6.5}, {t: 14, x: 7.0, y: 0.6}]}",
+        "",
+    ])
+
+
 def house_yaml() -> str:
     """bench_replay's house loop, cut to 30 s (without the bin and the cook, who come later)."""
     lines = bench_replay.scenario_yaml(DURATION).splitlines()
@@ -129,6 +178,7 @@ SCENES = {
     "house": house_yaml,
     "room": room_yaml,
     "hall": hall_yaml,
+    "office": office_yaml,
 }
 
 
