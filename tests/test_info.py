@@ -175,3 +175,37 @@ def test_info_tf_tree_counts_every_sample_of_the_log(tmp_path):
     res = _run(write_log(tmp_path / "long.bag", "ros1", msgs))
     assert res.exit_code == 0, res.output
     assert "tf tree:\n  odom\n    base_link  [tf, 301 samples]\n      laser  [static]\n" in res.output
+
+
+def test_info_takes_replays_config_and_set(tmp_path):
+    """`info --config F --set K=V` says what `replay --config F --set K=V` would use: here the
+    base frame (``map.robot.base_frame``, which no option of info could give before) and the
+    fixed frame, where --set wins over --fixed-frame as in replay."""
+    import json
+
+    msgs = []
+    for i in range(11):
+        t = S + i * S // 10
+        msgs.append(tf(t, [("odom", "base_link", (0.1 * i, 0.0, 0.0)), ("base_link", "chassis", (0.0, 0.0, 0.1))]))
+        msgs.append(scan("/scan", t + 1, [1.0, 2.0, 3.0], frame_id="chassis"))
+    path = write_log(tmp_path / "log.mcap", "mcap-ros2", msgs)
+    assert "base frame:  base_link\n" in _run(path).output
+    res = _run(path, "--set", "map.robot.base_frame=chassis")
+    assert res.exit_code == 0, res.output
+    assert "base frame:  chassis\n" in res.output
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("map:\n  robot:\n    base_frame: chassis\nreplay:\n  fixed_frame: base_link\n")
+    res = _run(path, "--config", cfg, "--json")
+    assert res.exit_code == 0, res.output
+    got = json.loads(res.stdout)
+    assert (got["base_frame"], got["fixed_frame"]) == ("chassis", "base_link")
+    rep = CliRunner().invoke(cli, ["replay", str(path), "--config", str(cfg), "-o", str(tmp_path / "o"), "--no-plots",
+                                   "-q"])  # fmt: skip
+    assert rep.exit_code == 0, rep.output
+    report = json.loads((tmp_path / "o" / "report.json").read_text())
+    assert (report["base_frame"], report["fixed_frame"]) == (got["base_frame"], got["fixed_frame"])
+    # --set after the options, as replay applies them
+    res = _run(path, "--fixed-frame", "base_link", "--set", "replay.fixed_frame=odom")
+    assert "fixed frame: odom\n" in res.output
+    bad = _run(path, "--set", "map.robot.base_frame")
+    assert bad.exit_code == 2 and "expected KEY=VALUE" in bad.stderr

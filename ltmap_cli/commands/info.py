@@ -17,7 +17,7 @@ from pathlib import Path
 
 import click
 
-from ..config import ReplayConfig
+from ..config import ReplayConfig, load_config, parse_set, set_dotted
 from ..core.config import MapConfig
 from ..errors import LogReadError, TransformError
 from ..io import decode as dec
@@ -341,16 +341,33 @@ def render(r: dict) -> str:
     help="A sensor mount missing from the log (repeatable).",
 )
 @click.option("--fixed-frame", default="", help="Fixed frame (default: map if tf has it, else odom).")
+@click.option("--config", "config_file", type=click.Path(path_type=Path),
+              help="The parameters replay would be given (a YAML file, as replay's --config): its topics, mounts, "
+              "fixed and base frames.")  # fmt: skip
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="A parameter as replay's --set, e.g. --set map.robot.base_frame=base_footprint.")
 @click.option("--allow-truncated", is_flag=True, help="Exit 0 on a truncated or corrupt log.")
 @click.option("--json", "as_json", is_flag=True, help="Print what info found as JSON (the same claims).")
 def info(
-    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated,
-    as_json,
+    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, config_file, overrides,
+    allow_truncated, as_json,
 ) -> None:
     """Show what LOG(s) hold: topics, types, counts, duration, rates, the tf tree, which topics
     `ltmap replay` would use, the fixed and base frames it would use, and warnings for what it
-    would skip and why."""
-    r = gather(list(logs), scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, allow_truncated)
+    would skip and why. With replay's --config / --set, what replay would use with them."""
+    cfg = load_config(config_file)  # in replay's order: the file, the options, then --set
+    rc = cfg.replay
+    rc.fixed_frame = fixed_frame or rc.fixed_frame
+    rc.tf = [*rc.tf, *tf_mounts]
+    for key, value in (("scan_topics", scan_topics), ("cloud_topics", cloud_topics), ("depth_topics", depth_topics)):
+        if value:
+            setattr(rc, key, list(value))
+    for key, value in parse_set(overrides):
+        set_dotted(cfg, key, value)
+    cfg.validate()
+    rc = cfg.replay
+    r = gather(list(logs), rc.scan_topics, rc.cloud_topics, rc.depth_topics, rc.tf, rc.fixed_frame, allow_truncated,
+               base_frame=cfg.map.robot.base_frame)  # fmt: skip
     if as_json:
 
         click.echo(json.dumps({k: (str(v) if k == "error" else v) for k, v in r.items()}, indent=2))
