@@ -187,6 +187,10 @@ def test_fused_depth_kernel_dedupe_set_sized_by_the_previous_frame():
             assert 2 * len(k2) > cap  # this frame overflowed the first set: the second pass ran
         if scale == 0.02:
             assert 4 * len(k2) < cap  # and this one ran in a set sized for the frame before
+    # without the dedupe every pixel is a ray: the set is not used, and its size stays the least
+    lmap2 = LayeredMap()
+    e3, k3 = lmap2.depth_rays(raw, 250.0, 250.0, 159.5, 119.5, T, 10.0, None, False)
+    assert len(k3) == h * w and getattr(lmap2._scratch, "depth_cap", DEPTH_CAP_MIN) == DEPTH_CAP_MIN
 
 
 def test_fused_depth_kernel_big_endian_and_strided():

@@ -746,13 +746,15 @@ class LayeredMap:
             reach = float(fin.max()) * 4.0 if len(fin) else 0.0
         check_extent(T[:3, 3], reach + self.resolution, self.resolution, "depth camera")
         fp_inv, fp_min, fp_max, use_fp = self._footprint(robot_pose)
-        scratch = self._scratch  # this thread's dedupe set size, from its previous frame
+        scratch = self._scratch  # this thread's dedupe set size, from its previous frame (unused without dedupe)
+        cap = getattr(scratch, "depth_cap", DEPTH_CAP_MIN) if dedupe else DEPTH_CAP_MIN
         ends, kind = depth_image_rays(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(T, dtype=np.float64),
             float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
-            bool(dedupe), 1.0 / self.resolution, np.int64(getattr(scratch, "depth_cap", DEPTH_CAP_MIN)),
+            bool(dedupe), 1.0 / self.resolution, np.int64(cap),
         )  # fmt: skip
-        scratch.depth_cap = depth_rays_cap(len(kind), depth.size)
+        if dedupe:
+            scratch.depth_cap = depth_rays_cap(len(kind), depth.size)
         return ends, kind
 
     def depth_projection(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
