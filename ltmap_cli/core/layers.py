@@ -749,7 +749,7 @@ class LayeredMap:
         scratch = self._scratch  # this thread's dedupe set size, from its previous frame (unused without dedupe)
         cap = getattr(scratch, "depth_cap", DEPTH_CAP_MIN) if dedupe else DEPTH_CAP_MIN
         ends, kind = depth_image_rays(
-            depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(T, dtype=np.float64),
+            depth, unit_mm, float(fx), float(fy), float(cx), float(cy), T,
             float(max_range), float(self.cfg.sensor.ground_tolerance), fp_inv, fp_min, fp_max, use_fp,
             bool(dedupe), 1.0 / self.resolution, np.int64(cap),
         )  # fmt: skip

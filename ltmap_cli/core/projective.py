@@ -278,9 +278,9 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
         py0 = Tinv[1, 0] * cx0 + Tinv[1, 1] * cy0 + Tinv[1, 2] * cz0 + Tinv[1, 3]
         pz0 = Tinv[2, 0] * cx0 + Tinv[2, 1] * cy0 + Tinv[2, 2] * cz0 + Tinv[2, 3]
         g = 0.5 * (BLOCK - 1)  # the block's centre, in voxel steps from voxel (0, 0, 0)
-        cls, _, _ = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g, BLOCK,
-                        ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h, planes,
-                        tmin, tmax)  # fmt: skip
+        cls, _, _ = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g,
+                              BLOCK, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
+                              planes, tmin, tmax)  # fmt: skip
         if cls == CULLED:
             continue
         keys[n] = pack_block(bi, bj, bk)
@@ -296,10 +296,10 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
             sa, sc, se = (sub >> 2) * Q, ((sub >> 1) & 1) * Q, (sub & 1) * Q
             g2 = 0.5 * (Q - 1)
             qcls, qlo, qhi = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
-                             py0 + ex1 * (sa + g2) + ey1 * (sc + g2) + ez1 * (se + g2),
-                             pz0 + ex2 * (sa + g2) + ey2 * (sc + g2) + ez2 * (se + g2), Q,
-                             ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h, planes,
-                             tmin, tmax)  # fmt: skip
+                                       py0 + ex1 * (sa + g2) + ey1 * (sc + g2) + ez1 * (se + g2),
+                                       pz0 + ex2 * (sa + g2) + ey2 * (sc + g2) + ez2 * (se + g2), Q,
+                                       ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w,
+                                       h, planes, tmin, tmax)  # fmt: skip
             if qcls == CULLED:
                 continue
             if qcls == FRONT:  # all its 64 voxels: word a of the mask holds voxels (a, c, e) as bits c * 8 + e

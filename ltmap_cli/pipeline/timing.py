@@ -4,9 +4,10 @@ The stages (report.json ``stage_s``): ``warmup`` (the kernels' first calls: numb
 after an install, then loads them from its disk cache), ``read`` (reading and decoding the log:
 with the reader thread, the time the pipeline waited for it; ``read_thread`` its own busy time),
 ``tf`` (tf buffer and lookups), ``rays`` and ``cast`` (a frame's rays, and the voxels they pass,
-with a depth image's projection in projective mode: busy time summed over the worker threads; ``rays_wait`` the time integration waited for them), ``integrate`` (the voxels' updates
-in O), ``ticks`` (ST/LT rules), ``projection`` (P, the planner,
-the virtual scan, the map files) and ``output`` (snapshots, events, plots, replay.mcap).
+with a depth image's projection in projective mode: busy time summed over the worker threads;
+``rays_wait`` the time integration waited for them), ``integrate`` (the voxels' updates in O),
+``ticks`` (ST/LT rules), ``projection`` (P, the planner, the virtual scan, the map files) and
+``output`` (snapshots, events, plots, replay.mcap).
 """
 
 from __future__ import annotations
