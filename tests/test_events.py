@@ -179,6 +179,19 @@ def test_history_holds_values_between_records():
     assert h["lt_min"] == pytest.approx([0.0, 0.0, 0.5])
 
 
+def test_history_of_a_voxel_recorded_twice_in_a_tick_keeps_the_last_record():
+    # voxel 7 recorded twice at tick 0 (0.9 then 0.1): the later record stands, as a tick's
+    # rules leave it; voxel 9 is asked for but never recorded: 0 throughout
+    hist_i = np.array([[0, 7], [0, 8], [0, 7], [3, 8], [3, 8]], dtype=np.int32)
+    hist_v = np.array([[0.9, 0.0], [0.4, 0.2], [0.1, 0.0], [0.7, 0.6], [0.5, 0.3]], dtype=np.float32)
+    h = event_history(hist_i, hist_v, np.array([9, 7, 8, 7]), TickClock(1.0, 0.2))
+    assert h["t"] == pytest.approx([1.2, 1.8])
+    assert h["st_mean"] == pytest.approx([(0.1 + 0.4) / 3, (0.1 + 0.5) / 3])
+    assert h["st_max"] == pytest.approx([0.4, 0.5])
+    assert h["lt_max"] == pytest.approx([0.2, 0.3])
+    assert h["st_min"] == pytest.approx([0.0, 0.0])
+
+
 def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
     log = pillar_log(tmp_path / "pillar.mcap")
     out = tmp_path / "out"

@@ -398,17 +398,20 @@ def event_history(
     empty = {k: np.zeros(0) for k in ("t", "st_mean", "st_min", "st_max", "lt_mean", "lt_min", "lt_max")}
     if not len(ticks):
         return empty
-    order = np.lexsort((vids, ticks))
+    order = np.lexsort((vids, ticks))  # stable: a (tick, voxel) recorded twice keeps its last record
     ticks, vids, vals = ticks[order], vids[order], vals[order]
-    uniq_ticks = np.unique(ticks)
-    col = {v: c for c, v in enumerate(np.unique(ids).tolist())}
-    cur = np.zeros((len(col), 2), dtype=np.float32)
+    last = np.ones(len(ticks), dtype=bool)
+    last[:-1] = (ticks[1:] != ticks[:-1]) | (vids[1:] != vids[:-1])
+    ticks, vids, vals = ticks[last], vids[last], vals[last]
+    uniq_ticks, starts = np.unique(ticks, return_index=True)
+    uid = np.unique(ids)
+    cols = np.searchsorted(uid, vids)
+    ends = np.append(starts[1:], len(ticks))
+    cur = np.zeros((len(uid), 2), dtype=np.float32)
     out = np.zeros((len(uniq_ticks), 6), dtype=np.float32)
-    pos = 0
-    for r, t in enumerate(uniq_ticks):
-        while pos < len(ticks) and ticks[pos] == t:
-            cur[col[int(vids[pos])]] = vals[pos]
-            pos += 1
+    for r in range(len(uniq_ticks)):  # a tick's records at once (was a record at a time: 0.17 s a replay)
+        a, b = starts[r], ends[r]
+        cur[cols[a:b]] = vals[a:b]  # one record per voxel in a tick: no index repeats
         out[r] = (cur[:, 0].mean(), cur[:, 0].min(), cur[:, 0].max(), cur[:, 1].mean(), cur[:, 1].min(),
                   cur[:, 1].max())  # fmt: skip
     t = clock.end(uniq_ticks)
