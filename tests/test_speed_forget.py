@@ -19,7 +19,7 @@ HOUSE = Path(__file__).resolve().parent.parent / "sample_logs" / "scenarios" / "
 
 @njit(cache=False)
 def _forget_kernel(n_blocks, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi,
-                   hist_i, hist_v, hist_meta):  # fmt: skip
+                   hist_i, hist_v, hist_p, hist_meta):  # fmt: skip
     """ST falls to 0 where no obstacle was seen for ``forget_ticks``. Returns the number forgotten,
     or -1 when the history buffer must grow first (nothing changed)."""
     n = 0
@@ -31,7 +31,7 @@ def _forget_kernel(n_blocks, d_coords, st, lt, last_obs, obst_since, tick_index,
                 if k_lo <= k <= k_hi:
                     if hist_meta[0] >= hist_i.shape[0]:
                         return -1
-                    _record_history(hist_i, hist_v, hist_meta, tick_index, b * 512 + o, 0.0, lt[b, o])
+                    _record_history(hist_i, hist_v, hist_p, hist_meta, tick_index, b * 512 + o, 0.0, lt[b, o], False)
                 st[b, o] = 0.0
                 obst_since[b, o] = -1
                 n += 1
@@ -49,9 +49,10 @@ def _check_nothing_left(lmap: LayeredMap) -> int:
     obst = d.data["obst_since"].copy()
     hist_i = np.zeros((1 << 20, 2), np.int32)
     hist_v = np.zeros((1 << 20, 2), np.float32)
+    hist_p = np.zeros(1 << 20, np.uint8)
     meta = np.zeros(1, np.int64)
     n = _forget_kernel(d.n_blocks, d.block_coords, st, d.data["lt"], d.data["last_obs"], obst, lmap.tick_index - 1,
-                       forget_ticks, k_lo, k_hi, hist_i, hist_v, meta)  # fmt: skip
+                       forget_ticks, k_lo, k_hi, hist_i, hist_v, hist_p, meta)  # fmt: skip
     assert n == 0, f"tick {lmap.tick_index - 1}: the queue missed {n} voxels to forget"
     return int((d.channel("st") > 0).sum())
 

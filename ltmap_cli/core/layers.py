@@ -263,16 +263,18 @@ class EventBuffers(NamedTuple):
     tr_meta: np.ndarray
     hist_i: np.ndarray
     hist_v: np.ndarray
+    hist_p: np.ndarray
     hist_meta: np.ndarray
 
 
 @njit(cache=True, inline="always")
-def _record_history(hist_i, hist_v, hist_meta, tick_index, vid, st_v, lt_v):
+def _record_history(hist_i, hist_v, hist_p, hist_meta, tick_index, vid, st_v, lt_v, periodic):
     n = hist_meta[0]
     hist_i[n, 0] = tick_index
     hist_i[n, 1] = vid
     hist_v[n, 0] = st_v
     hist_v[n, 1] = lt_v
+    hist_p[n] = 1 if periodic else 0
     hist_meta[0] = n + 1
 
 
@@ -375,7 +377,8 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
             if entered:
                 _record_transition(ev, TR_APPEAR, db, doff, tick_index, d.obst_since[db, doff])
             if in_band and (s.record_all or entered):
-                _record_history(ev.hist_i, ev.hist_v, ev.hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
+                _record_history(ev.hist_i, ev.hist_v, ev.hist_p, ev.hist_meta, tick_index, db * 512 + doff, v,
+                                lt[db, doff], not entered)  # fmt: skip
         else:
             hit_mark[b, off] = 0
             counters[C_SEEN_FREE] += 1
@@ -412,7 +415,8 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
             if left:
                 _record_transition(ev, TR_DISAPPEAR, db, doff, tick_index, d.free_since[db, doff])
             if in_band and (s.record_all or left):
-                _record_history(ev.hist_i, ev.hist_v, ev.hist_meta, tick_index, db * 512 + doff, v, lt[db, doff])
+                _record_history(ev.hist_i, ev.hist_v, ev.hist_p, ev.hist_meta, tick_index, db * 512 + doff, v,
+                                lt[db, doff], not left)  # fmt: skip
     return TICK_DONE
 
 
@@ -452,7 +456,7 @@ def _queue_obstacles(tb_block, tb_off, n_tb, o_coords, d_keys, d_vals, last_obs,
 
 @njit(cache=True)
 def _forget_due(vids, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi, hist_i, hist_v,
-                hist_meta):  # fmt: skip
+                hist_p, hist_meta):  # fmt: skip
     """``_forget_kernel``'s rule for the queued voxels due by this tick (``vids``: their ids,
     sorted and unique, ``LayeredMap._due_voxels``), in the same (block, offset) order, so with
     the same history records: a voxel with ST > 0 was seen as an obstacle at ``last_obs`` and
@@ -469,33 +473,72 @@ def _forget_due(vids, d_coords, st, lt, last_obs, obst_since, tick_index, forget
             if k_lo <= k <= k_hi:
                 if hist_meta[0] >= hist_i.shape[0]:
                     return -1
-                _record_history(hist_i, hist_v, hist_meta, tick_index, vid, 0.0, lt[b, o])
+                _record_history(hist_i, hist_v, hist_p, hist_meta, tick_index, vid, 0.0, lt[b, o], False)
             st[b, o] = 0.0
             obst_since[b, o] = -1
             n += 1
     return n
 
 
+HISTORY_MAX_ROWS = 1 << 22  # history rows (17 bytes each: 68 MB) before its periodic samples are thinned
+
+
 class EventLog:
     """What the tick kernel records for the measurements of SPEC 6 (plain growable arrays).
 
     ``transitions`` rows (columns TR_KIND, TR_BLOCK, TR_OFF, TR_TICK, TR_SINCE): (kind TR_APPEAR /
-    TR_DISAPPEAR, D block, offset, tick, tick the obstacle / seen-free streak began); ``history_i`` rows (tick, D voxel id = block * 512 +
-    offset) with ``history_v`` (ST, LT) after that tick."""
+    TR_DISAPPEAR, D block, offset, tick, tick the obstacle / seen-free streak began); ``history``
+    rows (tick, D voxel id = block * 512 + offset) with (ST, LT) after that tick: a voxel's
+    transitions and forgetting, and periodic samples of every voxel observed (``hist_p`` 1).
 
-    def __init__(self):
+    The periodic samples grow with the log's length (a room seen from one end: 12 k rows a second
+    of log), so they are bounded: when the rows reach ``max_rows``, the periodic samples older than
+    this tick at every other sampling tick are dropped and the sampling period doubles
+    (``sample_every``), so hours of log keep a history of fixed size, coarser in time the longer
+    the log. Transitions and forgetting are kept whole (the events are made of them)."""
+
+    def __init__(self, max_rows: int = HISTORY_MAX_ROWS):
         self.tr = np.zeros((1024, 5), dtype=np.int32)
         self.tr_meta = np.zeros(1, dtype=np.int64)
         self.hist_i = np.zeros((1 << 16, 2), dtype=np.int32)
         self.hist_v = np.zeros((1 << 16, 2), dtype=np.float32)
+        self.hist_p = np.zeros(1 << 16, dtype=np.uint8)
         self.hist_meta = np.zeros(1, dtype=np.int64)
+        self.max_rows = max_rows
+        self.thinned = 0  # times the periodic samples were thinned: their period is 2 ** thinned x the map's
 
-    def grow(self) -> None:
+    def sample_every(self, every: int) -> int:
+        """Ticks between periodic samples, for the map's ``history_every`` (0: none)."""
+        return every << self.thinned
+
+    def grow(self, tick_index: int = 0, every: int = 0) -> None:
+        """Room for the next record: the buffers doubled, or (the history at ``max_rows``) its
+        periodic samples thinned first (``tick_index``: the tick being recorded, kept whole;
+        ``every``: the map's ``history_every``)."""
         if self.tr_meta[0] >= len(self.tr):
             self.tr = np.concatenate([self.tr, np.zeros_like(self.tr)])
-        if self.hist_meta[0] >= len(self.hist_i):
-            self.hist_i = np.concatenate([self.hist_i, np.zeros_like(self.hist_i)])
-            self.hist_v = np.concatenate([self.hist_v, np.zeros_like(self.hist_v)])
+        n = int(self.hist_meta[0])
+        if n < len(self.hist_i):
+            return
+        if n >= self.max_rows and every > 0:
+            self._thin(n, tick_index, every)
+            n = int(self.hist_meta[0])
+            if 4 * n <= 3 * len(self.hist_i):  # a quarter free at least: no bigger buffer
+                return
+        self.hist_i = np.concatenate([self.hist_i, np.zeros_like(self.hist_i)])
+        self.hist_v = np.concatenate([self.hist_v, np.zeros_like(self.hist_v)])
+        self.hist_p = np.concatenate([self.hist_p, np.zeros_like(self.hist_p)])
+
+    def _thin(self, n: int, tick_index: int, every: int) -> None:
+        period = 2 * self.sample_every(every)
+        ticks = self.hist_i[:n, 0]
+        keep = (self.hist_p[:n] == 0) | (ticks % period == 0) | (ticks >= tick_index)
+        m = int(keep.sum())
+        self.hist_i[:m] = self.hist_i[:n][keep]
+        self.hist_v[:m] = self.hist_v[:n][keep]
+        self.hist_p[:m] = self.hist_p[:n][keep]
+        self.hist_meta[0] = m
+        self.thinned += 1
 
     @property
     def transitions(self) -> np.ndarray:
@@ -965,7 +1008,8 @@ class LayeredMap:
         max_gap = max(1, int(round(lay.max_gap_s / lay.tick)))
         pc = self.cfg.projection
         k_lo, k_hi = band_k_range(pc.z_min, pc.z_max, self.resolution)
-        record_all = self.history_every > 0 and self.tick_index % self.history_every == 0
+        every = self.events.sample_every(self.history_every)
+        record_all = every > 0 and self.tick_index % every == 0
         ev = self.events
         n_tb = int(self._tb_meta[0])
         counters = np.zeros(5, dtype=np.int64)
@@ -980,7 +1024,7 @@ class LayeredMap:
             d = self.D
             dl = DLayers(d.table_keys, d.table_vals, d.block_coords, d.meta, d.data["st"], d.data["lt"],
                          d.data["last_obs"], d.data["last_seen"], d.data["obst_since"], d.data["free_since"])  # fmt: skip
-            bufs = EventBuffers(ev.tr, ev.tr_meta, ev.hist_i, ev.hist_v, ev.hist_meta)
+            bufs = EventBuffers(ev.tr, ev.tr_meta, ev.hist_i, ev.hist_v, ev.hist_p, ev.hist_meta)
             start = _tick_kernel(self._tb_block, self._tb_off, n_tb, start, self.O.block_coords,
                                  self.O.data["logodds"], self.O.data["hit"], dl, self._near, settings, bufs,
                                  counters)  # fmt: skip
@@ -988,7 +1032,7 @@ class LayeredMap:
                 break
             if self.D.n_blocks >= self.D.max_blocks:
                 self.D.grow()
-            ev.grow()
+            ev.grow(self.tick_index, self.history_every)
         d = self.D
         while not _queue_obstacles(
             self._tb_block, self._tb_off, n_tb, self.O.block_coords, d.table_keys, d.table_vals,
@@ -1000,11 +1044,11 @@ class LayeredMap:
         while True:
             forgotten = _forget_due(
                 vids, d.block_coords, d.data["st"], d.data["lt"], d.data["last_obs"], d.data["obst_since"],
-                self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v, ev.hist_meta,
+                self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v, ev.hist_p, ev.hist_meta,
             )  # fmt: skip
             if forgotten >= 0:
                 break
-            ev.grow()
+            ev.grow(self.tick_index, self.history_every)
         self._fq_meta[0] = end
         result = TickResult(
             tick_index=self.tick_index,
