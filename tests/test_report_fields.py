@@ -18,7 +18,8 @@ from ltmap_cli.cli import cli
 
 LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
 PROGRESS = re.compile(
-    r"^\[[#.]+\] +(?P<done>\d+\.\d)/(?P<total>\d+\.\d) s log \| +\d+\.\d frames/s \| +\d+\.\dx real time$"
+    r"^\[[#.]+\] +(?P<done>\d+\.\d)/(?P<total>\d+\.\d) s log \| +\d+\.\d frames/s \| +\d+\.\dx real time"
+    r"( \| (?P<left>\d+ s|\d+ min \d\d s|\d+ h \d\d min) left)?$"
 )
 
 pytestmark = pytest.mark.skipif(not LOG.exists(), reason=f"{LOG} not shipped")
@@ -95,6 +96,27 @@ def test_progress_line_on_stderr_unless_quiet(runs):
     assert not any(PROGRESS.match(line) for line in quiet.stderr.splitlines())
     # the summary line (stdout) is printed either way
     assert "x real time" in quiet.stdout and "x real time" in result.stdout
+
+
+def test_progress_line_gives_the_time_left_at_the_speed_so_far():
+    import io
+
+    from ltmap_cli.commands.replay import ProgressBar, time_left
+    from ltmap_cli.pipeline.replay import Progress
+
+    # an hour of log, a quarter done in 112.5 s of wall time: 8x, so 2700 s of log take 337.5 s
+    out = io.StringIO()
+    bar = ProgressBar(out)
+    bar(Progress(log_done_s=900.0, log_total_s=3600.0, frames=40500, wall_s=112.5))
+    line = out.getvalue().strip()
+    m = PROGRESS.match(line)
+    assert m and m["left"] == "5 min 38 s", line
+    assert time_left(36000.0, 8.0) == "1 h 15 min" and time_left(45.0, 1.0) == "45 s" and time_left(-1, 2) == "0 s"
+    # no guess in the first seconds (under 5 % of the log), nor once the log is done
+    for p in (Progress(60.0, 3600.0, 10, 1.0), Progress(3600.0, 3600.0, 10, 400.0)):
+        out = io.StringIO()
+        ProgressBar(out)(p)
+        assert "left" not in out.getvalue() and PROGRESS.match(out.getvalue().strip())
 
 
 def test_config_yaml_names_the_inputs_and_repeats_the_run(tmp_path):

@@ -15,10 +15,25 @@ from ..pipeline.replay import Replay, ReplayRequest
 from . import StatusLine, nonempty_output
 
 
+ETA_AFTER_S = 2.0  # the time left is shown after this much wall time (or 5 % of the log): no wild first guess
+
+
+def time_left(log_left_s: float, speed: float) -> str:
+    """The wall time the rest of the log takes at ``speed`` (x real time), rounded for a person:
+    ``"45 s"``, ``"5 min 38 s"``, ``"2 h 05 min"``."""
+    s = int(round(max(log_left_s, 0.0) / speed))
+    if s < 60:
+        return f"{s} s"
+    if s < 3600:
+        return f"{s // 60} min {s % 60:02d} s"
+    return f"{s // 3600} h {(s % 3600) // 60:02d} min"
+
+
 class ProgressBar(StatusLine):
-    """A one-line bar on stderr: log time done / total, frames/s, speed against real time;
-    outside a terminal a line every 10 %. Steps other than mapping (compiling kernels, writing
-    plots) are named once, on lines of their own."""
+    """A one-line bar on stderr: log time done / total, frames/s, speed against real time and the
+    time left at that speed (hours of log take a while); outside a terminal a line every 10 %.
+    Steps other than mapping (compiling kernels, writing plots) are named once, on lines of their
+    own."""
 
     def __init__(self, stream=None, width: int = 28):
         super().__init__(stream)
@@ -39,6 +54,8 @@ class ProgressBar(StatusLine):
             f"[{'#' * fill}{'.' * (self.width - fill)}] {p.log_done_s:7.1f}/{p.log_total_s:.1f} s log"
             f" | {fps:6.1f} frames/s | {p.speed:5.1f}x real time"
         )
+        if frac < 1.0 and p.speed > 0 and (p.wall_s >= ETA_AFTER_S or frac >= 0.05):
+            line += f" | {time_left(p.log_total_s - p.log_done_s, p.speed)} left"
         decile = 10 if frac >= 1.0 else int(frac * 10)
         new = decile > self._last_decile
         if new:
