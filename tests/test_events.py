@@ -192,6 +192,23 @@ def test_history_of_a_voxel_recorded_twice_in_a_tick_keeps_the_last_record():
     assert h["st_min"] == pytest.approx([0.0, 0.0])
 
 
+def test_histories_of_several_events_share_voxels_and_carry_values_from_before_their_start():
+    from ltmap_cli.analysis.events import event_histories
+
+    # ticks 0, 2, 4 (end times 1.2, 1.6, 2.0 s at 0.2 s ticks from t0 = 1.0); voxel 5 in both events
+    hist_i = np.array([[0, 5], [0, 6], [2, 9], [2, 5], [4, 6], [4, 9]], dtype=np.int32)
+    hist_v = np.array([[0.5, 0.1], [0.9, 0.2], [0.3, 0.3], [0.7, 0.4], [0.1, 0.5], [0.2, 0.6]], dtype=np.float32)
+    h = event_histories(hist_i, hist_v, {"a": np.array([6, 5]), "b": np.array([5, 9, 5])}, TickClock(1.0, 0.2),
+                        {"a": 1.5, "b": None}, t_to_s=1.9)  # fmt: skip
+    # a = {5, 6} from 1.5 s: tick 2 shows 5 at 0.7 (recorded then) and 6 at 0.9 (from tick 0, before the start)
+    assert h["a"]["t"] == pytest.approx([1.6])
+    assert h["a"]["st_mean"] == pytest.approx([0.8]) and h["a"]["lt_max"] == pytest.approx([0.4])
+    # b = {5, 9} up to 1.9 s: ticks 0 and 2; tick 0 has no record of 9 yet (0)
+    assert h["b"]["t"] == pytest.approx([1.2, 1.6])
+    assert h["b"]["st_max"] == pytest.approx([0.5, 0.7]) and h["b"]["st_min"] == pytest.approx([0.0, 0.3])
+    assert h["b"]["lt_mean"] == pytest.approx([0.05, 0.35])
+
+
 def test_planner_latency_with_a_goal_behind_the_pillar(tmp_path):
     log = pillar_log(tmp_path / "pillar.mcap")
     out = tmp_path / "out"

@@ -390,11 +390,43 @@ def event_history(
 ) -> dict[str, np.ndarray]:
     """ST and LT over time for a set of D voxels: mean, min and max at every recorded tick, each
     voxel holding its last recorded value in between (0 before its first record)."""
-    ids = np.asarray(voxel_ids, dtype=np.int64)
-    sel = np.isin(hist_i[:, 1], ids)
-    ticks = hist_i[sel, 0].astype(np.int64)
-    vids = hist_i[sel, 1].astype(np.int64)
-    vals = hist_v[sel]
+    return event_histories(hist_i, hist_v, {0: voxel_ids}, clock, {0: t_from_s}, t_to_s)[0]
+
+
+def event_histories(
+    hist_i: np.ndarray,
+    hist_v: np.ndarray,
+    members: dict,
+    clock: TickClock,
+    t_from_s: dict | None = None,
+    t_to_s: float | None = None,
+) -> dict:
+    """``event_history`` of each voxel set of ``members`` (key -> D voxel ids; ``t_from_s``: key ->
+    its start, or None), the history's rows sorted by voxel once for all of them: a row search per
+    member voxel instead of a pass over every row per set (a 20 min log's 3.4 M rows and 50
+    events: 3.5 s -> well under a second)."""
+    vids_all = hist_i[:, 1]
+    order = np.argsort(vids_all, kind="stable")
+    sorted_vids = vids_all[order]
+    out = {}
+    for key, voxel_ids in members.items():
+        ids = np.unique(np.asarray(voxel_ids, dtype=np.int64))
+        lo = np.searchsorted(sorted_vids, ids, side="left")
+        hi = np.searchsorted(sorted_vids, ids, side="right")
+        counts = hi - lo
+        if counts.sum():  # the rows of these voxels, in their order in the history
+            starts = np.repeat(lo - np.concatenate([[0], np.cumsum(counts)[:-1]]), counts)
+            rows = np.sort(order[starts + np.arange(counts.sum())])
+        else:
+            rows = np.zeros(0, dtype=np.int64)
+        t_from = (t_from_s or {}).get(key)
+        out[key] = _history(hist_i[rows, 0].astype(np.int64), hist_i[rows, 1].astype(np.int64), hist_v[rows], ids,
+                            clock, t_from, t_to_s)  # fmt: skip
+    return out
+
+
+def _history(ticks, vids, vals, uid, clock, t_from_s, t_to_s) -> dict[str, np.ndarray]:
+    """``event_history`` of the rows (ticks, vids, vals) of the voxels ``uid`` (sorted, unique)."""
     empty = {k: np.zeros(0) for k in ("t", "st_mean", "st_min", "st_max", "lt_mean", "lt_min", "lt_max")}
     if not len(ticks):
         return empty
@@ -404,25 +436,32 @@ def event_history(
     last[:-1] = (ticks[1:] != ticks[:-1]) | (vids[1:] != vids[:-1])
     ticks, vids, vals = ticks[last], vids[last], vals[last]
     uniq_ticks, starts = np.unique(ticks, return_index=True)
-    uid = np.unique(ids)
     cols = np.searchsorted(uid, vids)
     ends = np.append(starts[1:], len(ticks))
-    cur = np.zeros((len(uid), 2), dtype=np.float32)
-    out = np.zeros((len(uniq_ticks), 6), dtype=np.float32)
-    for r in range(len(uniq_ticks)):  # a tick's records at once (was a record at a time: 0.17 s a replay)
-        a, b = starts[r], ends[r]
-        cur[cols[a:b]] = vals[a:b]  # one record per voxel in a tick: no index repeats
-        out[r] = (cur[:, 0].mean(), cur[:, 0].min(), cur[:, 0].max(), cur[:, 1].mean(), cur[:, 1].min(),
-                  cur[:, 1].max())  # fmt: skip
     t = clock.end(uniq_ticks)
     keep = np.ones(len(t), dtype=bool)
     if t_from_s is not None:
         keep &= t >= t_from_s
     if t_to_s is not None:
         keep &= t <= t_to_s
+    shown = np.flatnonzero(keep)
+    cur = np.zeros((len(uid), 2), dtype=np.float32)
+    out = np.zeros((len(shown), 6), dtype=np.float32)
+    if len(shown):
+        # the ticks before the first shown: only their last value per voxel matters
+        a0 = starts[shown[0]]
+        if a0:
+            rev_cols = cols[:a0][::-1]
+            _, last = np.unique(rev_cols, return_index=True)
+            cur[rev_cols[last]] = vals[:a0][::-1][last]
+        for q, r in enumerate(shown):  # a tick's records at once (the shown ticks are consecutive)
+            a, b = starts[r], ends[r]
+            cur[cols[a:b]] = vals[a:b]  # one record per voxel in a tick: no index repeats
+            out[q] = (cur[:, 0].mean(), cur[:, 0].min(), cur[:, 0].max(), cur[:, 1].mean(), cur[:, 1].min(),
+                      cur[:, 1].max())  # fmt: skip
     names = ("st_mean", "st_min", "st_max", "lt_mean", "lt_min", "lt_max")
     res = {"t": t[keep]}
-    res.update({n: out[keep, i] for i, n in enumerate(names)})
+    res.update({n: out[:, i] for i, n in enumerate(names)})
     return res
 
 

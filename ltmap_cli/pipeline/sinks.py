@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.events import event_history, events_csv, find_events, percentiles, voxel_keys
+from ..analysis.events import event_histories, events_csv, find_events, percentiles, voxel_keys
 from ..analysis.plan_tracker import PlanTracker
 from ..core.grid import band_k_range, coord_to_pos
 from ..core.layers import LayeredMap
@@ -404,11 +404,9 @@ class EventsSink(Sink):
         write_text_atomic(run.out / self.FILE, events_csv(events))
         self.events, self.members = events, members
         hist_i, hist_v = lmap.events.history
-        self.histories = {
-            e["id"]: event_history(hist_i, hist_v, members[e["id"]], clock,
-                                   t_from_s=(e["t_start_s"] if e["t_start_s"] is not None else e["t_lt_s"]) - 5.0)  # fmt: skip
-            for e in events
-        }
+        self.histories = event_histories(
+            hist_i, hist_v, {e["id"]: members[e["id"]] for e in events}, clock,
+            {e["id"]: (e["t_start_s"] if e["t_start_s"] is not None else e["t_lt_s"]) - 5.0 for e in events})  # fmt: skip
         lat = {"add": [e["latency_s"] for e in events if e["kind"] == "appear" and e["latency_s"] is not None],
                "remove": [e["latency_s"] for e in events if e["kind"] == "disappear" and e["latency_s"] is not None]}  # fmt: skip
         if self.annotators:
