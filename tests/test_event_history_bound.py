@@ -12,10 +12,10 @@ period's ticks, and the buffer no bigger than it started.
 from __future__ import annotations
 
 import numpy as np
+from test_speed_quiet import _frames
 
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import EventLog, LayeredMap
-from test_speed_quiet import _frames
 
 ROWS0 = 1 << 14  # the bounded run's buffer: it starts (and must stay) this small
 

@@ -57,6 +57,24 @@ def test_trace_taken_in_bit_by_bit_equals_the_whole_path():
     np.testing.assert_array_equal(trace.cells, footprint_cells(path, 0.2, R))
 
 
+def test_trace_of_the_replays_track_equals_the_whole_path():
+    """The replay keeps the robot's path in a ``Track`` (24 bytes a row), which the trace reads
+    by slices as the path grows."""
+    from ltmap_cli.pipeline.sinks import Track
+
+    rng = np.random.default_rng(4)
+    path = np.cumsum(rng.normal(0, 0.03, (300, 2)), axis=0)
+    trace, track = FootprintTrace(0.2, R), Track()
+    for k, (x, y) in enumerate(path):
+        track.append(0.1 * k, float(x), float(y))
+        if k % 41 == 0:
+            trace.update(track)
+    trace.update(track)
+    np.testing.assert_array_equal(trace.cells, footprint_cells(path, 0.2, R))
+    assert len(track) == 300 and track[298:].tolist() == [[0.1 * 298, *path[298]], [0.1 * 299, *path[299]]]
+    np.testing.assert_array_equal(track.xy(), path)
+
+
 def test_footprint_is_free_unless_occupied():
     m = LayeredMap(MapConfig())
     m.seed_long_term(np.array([[22, 40, 10]]), 1.0)  # an obstacle in LT at (1.1, 2.0)

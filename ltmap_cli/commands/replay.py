@@ -14,7 +14,6 @@ from ..outputs.folder import OutputFolder, check_completed_input, listing
 from ..pipeline.replay import Replay, ReplayRequest
 from . import StatusLine, nonempty_output
 
-
 ETA_AFTER_S = 2.0  # the time left is shown after this much wall time (or 5 % of the log): no wild first guess
 
 

@@ -425,7 +425,7 @@ class Replay:
             c.no_footprint += 1
         else:
             run.robot_xy = (float(placed.robot[0, 3]), float(placed.robot[1, 3]))
-            run.trajectory.append(((frame.stamp_ns - run.log_start_ns) / NS, *run.robot_xy))
+            run.trajectory.append((frame.stamp_ns - run.log_start_ns) / NS, *run.robot_xy)
         for end_ns in self.ticker.advance(frame.stamp_ns):
             self._tick(end_ns)
         if wait_s is not None:
