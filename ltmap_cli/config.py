@@ -66,6 +66,8 @@ class LocalizationConfig:
 @dataclass
 class ReplayConfig:
     fixed_frame: str = ""  # empty: `map` when the log has it, else `odom`
+    start_s: float = 0.0  # map the sensor frames from this many s of log time after the log's first message ...
+    end_s: float = 0.0  # ... up to this many (0: to the log's end)
     snapshot_every: float = 60.0  # s of log time
     mode: str = "trinary"  # map.pgm mode (map_server): trinary | scale | raw
     negate: bool = False  # map_server negate: images inverted (trinary, scale), flag only in raw
@@ -119,6 +121,12 @@ class Config:
                 problems.append(f"map.projection thresholds: {err}")
         if self.replay.snapshot_every <= 0:
             problems.append("replay.snapshot_every must be > 0")
+        if self.replay.start_s < 0 or self.replay.end_s < 0:
+            problems.append(f"replay.start_s and replay.end_s must be >= 0 (s of log time from the log's first "
+                            f"message), got {self.replay.start_s:g} and {self.replay.end_s:g}")
+        elif 0 < self.replay.end_s <= self.replay.start_s:
+            problems.append(f"replay.end_s ({self.replay.end_s:g} s) must be after replay.start_s "
+                            f"({self.replay.start_s:g} s), or 0 (to the log's end)")
         if self.replay.plan_goal and len(self.replay.plan_goal) != 2:
             problems.append(f"replay.plan_goal must be [x, y], got {self.replay.plan_goal}")
         if not self.replay.max_static_mb > 0:

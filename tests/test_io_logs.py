@@ -355,3 +355,72 @@ def test_depth_camera_info_without_a_usable_calibration_is_refused(k):
         _checked_intrinsics(info, (480, 640), "at 1.0 s")
     ok = SimpleNamespace(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1], width=640, height=480)
     assert _checked_intrinsics(ok, (480, 640), "at 1.0 s").fx == 500.0
+
+
+def _window_log():
+    """10 s: /tf_static and a latched CameraInfo at 0 s only, /tf at 20 Hz, scans and depth at 10 Hz."""
+    msgs = [tf(0, [("base_link", "camera_optical", (0.1, 0.0, 0.5))], static=True),
+            camera_info("/cam/depth/camera_info", 1, width=3, height=2, fx=500.0, fy=500.0, cx=1.0, cy=0.5)]
+    for k in range(200):
+        msgs.append(tf(k * S // 20 + 2, [("odom", "base_link", (0.01 * k, 0.0, 0.0))]))
+    for k in range(100):
+        t = k * S // 10 + 3
+        msgs.append(scan("/scan", t, [1.0 + k] * 8))
+        msgs.append(image("/cam/depth/image_raw", t + 1, np.full((2, 3), 1000 + k), encoding="16UC1"))
+    return sorted(msgs, key=lambda m: m.log_time_ns)
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_time_window_maps_its_frames_with_the_poses_and_calibration_from_before(tmp_path, fmt):
+    """``messages(start_ns, end_ns)``: sensor frames logged in the window only; /tf from
+    WINDOW_LEAD_S before it, /tf_static and the CameraInfo from the log's start (here logged once,
+    at 0 s); what lies before the start is not decoded, and reading stops after the end."""
+    from ltmap_cli.io.logs import WINDOW_LEAD_S
+
+    path = _log(tmp_path, fmt, _window_log(), chunk_size=4000)
+    with open_logs(path) as logs:
+        t0 = logs.start_ns
+        start, end = t0 + 6 * S + S // 20, t0 + 8 * S + S // 20  # 6.05 s .. 8.05 s
+        got = list(logs.messages(start_ns=start, end_ns=end))
+        read = dict(logs.stats.messages_per_topic)
+        before = dict(logs.before_start)
+    sensors = [(topic, t, fr) for topic, t, fr in got if isinstance(fr, (ScanFrame, DepthFrame))]
+    assert {topic for topic, _, _ in sensors} == {"/scan", "/cam/depth/image_raw"}
+    assert all(start <= t <= end for _, t, _ in sensors)
+    # scans 61..80 (6.1 .. 8.0 s): every one in the window, none outside
+    assert [fr.ranges[0] for topic, _, fr in sensors if topic == "/scan"] == [1.0 + k for k in range(61, 81)]
+    depth = [fr for topic, _, fr in sensors if topic == "/cam/depth/image_raw"]
+    assert len(depth) == 20 and depth[0].intrinsics.fx == 500.0  # the CameraInfo of 0 s
+    statics = [s for _, _, s in got if isinstance(s, TfSample) and s.static]
+    dynamic = [t for _, t, s in got if isinstance(s, TfSample) and not s.static]
+    assert len(statics) == 1
+    assert min(dynamic) >= start - WINDOW_LEAD_S * S and min(dynamic) <= start - WINDOW_LEAD_S * S + S // 20
+    assert max(dynamic) <= end
+    assert before["/scan"] == 61 and before["/cam/depth/image_raw"] == 61
+    # reading stopped at the window's end: at most one message per topic past it was read
+    assert read["/scan"] <= 82 and read["/tf"] <= 163
+
+
+@pytest.mark.parametrize("scan_k, fails", [(20, True), (50, False)])
+def test_time_window_reports_damage_up_to_its_end_only(tmp_path, scan_k, fails):
+    """A damaged chunk inside the part read (before the window's end) fails as for the whole log;
+    one after the end is never read. The damage: a range of scan k (logged at (k + 1) / 10 s)
+    changed inside an uncompressed chunk, which only its CRC tells."""
+    import struct
+
+    path = _log(tmp_path, "mcap-ros2", _scans(60), chunk_size=600, compress=False)
+    data = bytearray(path.read_bytes())
+    at = data.index(struct.pack("<f", 1.0 + scan_k) * 2)
+    data[at:at + 4] = struct.pack("<f", 99.0)
+    path.write_bytes(bytes(data))
+    with open_logs(path) as logs:
+        t0 = logs.start_ns
+        if fails:
+            with pytest.raises(TruncatedLogError, match="skipped 1 damaged chunk"):
+                list(logs.messages(start_ns=t0 + S, end_ns=t0 + 3 * S))
+        else:
+            got = list(logs.messages(start_ns=t0 + S, end_ns=t0 + 3 * S))
+            assert [fr.ranges[0] for _, _, fr in got] == [1.0 + i for i in range(10, 31)]  # 1.1 .. 3.1 s
+            assert logs.stats.stopped_at is None
+    with open_logs(path) as logs, pytest.raises(TruncatedLogError):  # the whole log meets it either way
+        list(logs.messages())

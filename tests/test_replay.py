@@ -515,3 +515,31 @@ def test_dump_config_and_config_file_round_trip(tmp_path):
     assert "tick: 0.1" in r.output and "lt_fall_s: 5.0" in r.output
     r3 = run(["replay", "--dump-config", "--set", "map.layers.nope=1"])
     assert_one_line_error(r3, "map.layers.nope")
+
+
+def test_replay_of_a_time_window(tmp_path):
+    """``--start`` / ``--end`` (s of log time from the log's first message): the sensor frames
+    logged in the window are mapped, with the poses and calibration from before it; the report's
+    duration and speed are the window's; a window outside the log is one line, status 2."""
+    from ltmap_cli.io.logs import open_logs
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    s = 1_000_000_000
+    with open_logs(log) as logs:
+        t0 = logs.start_ns
+        scans = [t for _, t, _, _ in logs.raw(["/scan"]) if t0 + 10 * s <= t <= t0 + 20 * s]
+    out = tmp_path / "w"
+    r = run(["replay", str(log), "-o", str(out), "-q", "--start", "10", "--end", "20"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["window"]["start_s"] == 10.0 and rep["window"]["end_s"] == 20.0
+    assert rep["window"]["messages_not_decoded_before_start"]["/scan"] == 100  # 10 s at 10 Hz, never decoded
+    assert rep["log_duration_s"] == 10.0 and rep["frames_used"] == {"/scan": len(scans)} and not rep["frames_skipped"]
+    assert "replayed 10.0 s of log" in r.stdout
+    for args, words in ((["--start", "99"], ["--start 99 s is past the end", "it lasts"]),
+                        (["--start", "5", "--end", "5"], ["replay.end_s (5 s) must be after replay.start_s"]),
+                        (["--end", "-1"], ["must be >= 0"])):
+        bad = CliRunner().invoke(cli, ["replay", str(log), "-o", str(tmp_path / "bad"), "-q", "--no-plots", *args])
+        assert bad.exit_code == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.output
+        assert all(w in bad.stderr for w in words), bad.stderr
+        assert not (tmp_path / "bad" / "report.json").exists()

@@ -90,6 +90,11 @@ def _xy(text: str, flag: str) -> list[float]:
 @click.option("--scan-topic", multiple=True, help="LaserScan topic to use (repeatable; default: all).")
 @click.option("--cloud-topic", multiple=True, help="PointCloud2 topic to use (repeatable; default: all).")
 @click.option("--depth-topic", multiple=True, help="Depth image topic to use (repeatable; default: all).")
+@click.option("--start", "start_s", type=float, metavar="SECONDS",
+              help="Map the sensor frames from this many seconds of log time after the log's first message "
+              "(tf from a little before); the log is read up to there without mapping it.")
+@click.option("--end", "end_s", type=float, metavar="SECONDS",
+              help="Map up to this many seconds of log time after the log's first message (default: its end).")
 @click.option("--resolution", type=float, help="Voxel size in metres (default 0.05).")
 @click.option("--tick", type=float, help="Update tick of ST/LT in seconds of log time (default 0.2).")
 @click.option("--snapshot-every", type=float, help="Seconds of log time between snapshots (default 60).")
@@ -112,7 +117,7 @@ def _xy(text: str, flag: str) -> list[float]:
               help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
 def replay(logs, output, force, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
-           depth_topic, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, mcap_out,
+           depth_topic, start_s, end_s, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, mcap_out,
            map_period, no_plots, depth_outlier_filter, localize, overrides, quiet):
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
     layered long-term map, and write map.pgm/.yaml (P), long_term.*, static.*, snapshots/
@@ -120,6 +125,8 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
 
     cfg = load_config(config_file)
     flags = {
+        "replay.start_s": start_s,
+        "replay.end_s": end_s,
         "map.resolution": resolution,
         "map.layers.tick": tick,
         "replay.snapshot_every": snapshot_every,

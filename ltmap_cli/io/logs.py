@@ -76,6 +76,7 @@ IMAGE = "sensor_msgs/msg/Image"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 ODOMETRY = "nav_msgs/msg/Odometry"
+WINDOW_LEAD_S = 5.0  # messages(start_ns=...): tf and odometry are read from this long before it
 
 Frame = ScanFrame | CloudFrame | DepthFrame | TfSample | OdometrySample
 
@@ -215,6 +216,7 @@ class LogSet:
         self.stats = ReadStats()
         self.skipped: Counter[str] = Counter()
         self.rate_skipped: Counter[str] = Counter()  # depth images dropped by depth_max_rate, per topic
+        self.before_start: Counter[str] = Counter()  # messages before messages()'s start_ns, not decoded
         self._warned: set[str] = set()  # topics whose undecodable messages were reported
         self.topics: dict[str, TopicInfo] = {}
         for src in sources:
@@ -273,14 +275,18 @@ class LogSet:
         twice: Counter[tuple[str, int, int]] = Counter()  # (topic, source a, source b) -> messages
         several = len(streams) > 1  # one log cannot repeat another
         n = self.stats.messages_per_topic
-        for t, topic, decode, where, k in heapq.merge(*streams, key=lambda x: x[0]):
-            n[topic] = n.get(topic, 0) + 1
-            if several:
-                prev = last.get(topic)
-                if prev is not None and prev[0] == t and prev[1] != k and topic not in _SHARED_TOPICS:
-                    twice[(topic, prev[1], k)] += 1
-                last[topic] = (t, k)
-            yield topic, t, decode, where, self.source_log[k]
+        try:
+            for t, topic, decode, where, k in heapq.merge(*streams, key=lambda x: x[0]):
+                n[topic] = n.get(topic, 0) + 1
+                if several:
+                    prev = last.get(topic)
+                    if prev is not None and prev[0] == t and prev[1] != k and topic not in _SHARED_TOPICS:
+                        twice[(topic, prev[1], k)] += 1
+                    last[topic] = (t, k)
+                yield topic, t, decode, where, self.source_log[k]
+        finally:
+            for st in streams:
+                st.close()
         if twice:
             (topic, a, b), count = twice.most_common(1)[0]
             pa, pb = self.sources[a].path, self.sources[b].path
@@ -292,8 +298,12 @@ class LogSet:
 
     @staticmethod
     def _tagged(src: Source, wanted: set[str], k: int) -> Iterator[tuple[int, str, Any, str, int]]:
-        for m in src.iter(wanted):
-            yield m.log_time_ns, m.topic, m.decode, f"on {m.topic}, message index {m.index} in {src.path}", k
+        it = src.iter(wanted)
+        try:
+            for m in it:
+                yield m.log_time_ns, m.topic, m.decode, f"on {m.topic}, message index {m.index} in {src.path}", k
+        finally:  # closed early (``messages`` past its end_ns): the source records what it read
+            it.close()
 
     def _finish(self) -> None:
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
@@ -305,9 +315,16 @@ class LogSet:
                                     f"be read, pass --allow-truncated")
 
     def messages(self, selection: TopicSelection | None = None, *, fast: bool = False,
-                 depth_max_rate: float = 0.0) -> Iterator[tuple[str, int, Frame]]:
+                 depth_max_rate: float = 0.0, start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[tuple[str, int, Frame]]:
         """``(topic, log_time_ns, item)`` in log-time order; item is a ScanFrame, CloudFrame,
         DepthFrame, TfSample (one per transform of a TFMessage) or OdometrySample.
+
+        ``start_ns`` / ``end_ns`` (log times): only the sensor frames logged in [start_ns, end_ns];
+        tf and odometry from ``WINDOW_LEAD_S`` before start_ns (the first frames' poses), /tf_static
+        and CameraInfo from the log's start (the latest counts). The log is read up to start_ns
+        without decoding its sensor messages, and reading stops after end_ns (damage met up to
+        there is reported as for the whole log).
 
         ``fast``: CDR messages of the high-rate types are read directly (``decode.CDR_PARSERS``;
         the same frames, anything unusual falls back to the generic deserializer) and depth images
@@ -340,8 +357,19 @@ class LogSet:
         static = set(sel.static_tf)
         latest_info: dict[str, Any] = {}  # topic -> (decode, where, parser) of its newest message
         good_info: dict[str, Any] = {}  # topic -> its newest message that could be decoded
-        for topic, t, decode, where, log in self._raw(kinds):
+        lead_ns = start_ns - int(WINDOW_LEAD_S * 1e9) if start_ns is not None else None
+        stream = self._raw(kinds)
+        for topic, t, decode, where, log in stream:
+            if end_ns is not None and t > end_ns:  # past the window: stop reading
+                stream.close()
+                self._finish()
+                return
             kind = kinds[topic]
+            if start_ns is not None and t < start_ns and (
+                    kind in ("depth", "scan", "cloud") or (kind in ("tf", "odom") and t < lead_ns
+                                                           and topic not in static)):  # fmt: skip
+                self.before_start[topic] += 1  # not decoded
+                continue
             parser = parsers[topic] if getattr(decode, "encoding", "") == "cdr" else None
             if kind == "info":
                 latest_info[topic] = (decode, where, parser)

@@ -255,13 +255,15 @@ class Ros1Source(Source):
         counts: dict[str, int] = {}
         damaged: list[str] = list(self.bag.layout.problems)
         n = 0
-        for t, cid, body in self.bag.messages(wanted, damaged):
-            topic, msgtype = self.conns[cid]
-            i = counts.get(topic, 0)
-            counts[topic] = i + 1
-            n += 1
-            yield RawMessage(t, topic, i, _deser(self.types, bytes(body), msgtype, ros1=True))
-        self.stopped_at = self._damage(list(dict.fromkeys(damaged)), n)
+        try:
+            for t, cid, body in self.bag.messages(wanted, damaged):
+                topic, msgtype = self.conns[cid]
+                i = counts.get(topic, 0)
+                counts[topic] = i + 1
+                n += 1
+                yield RawMessage(t, topic, i, _deser(self.types, bytes(body), msgtype, ros1=True))
+        finally:  # also when the reader stops early (a time window's end): the damage met so far
+            self.stopped_at = self._damage(list(dict.fromkeys(damaged)), n)
 
     def close(self) -> None:
         self.bag.close()
@@ -501,21 +503,25 @@ class McapSource(Source):
         if not topics:
             return
         if not self.indexed:
-            yield from self._stream(topics)
-            self.stopped_at = self._stop
+            try:
+                yield from self._stream(topics)
+            finally:  # also when the reader stops early (a time window's end)
+                self.stopped_at = self._stop
             return
         counts: dict[str, int] = {}
         n = 0
         damaged: list[str] = []
-        for ch, msg in self._indexed_messages(topics, damaged):
-            i = counts.get(ch.topic, 0)
-            counts[ch.topic] = i + 1
-            n += 1
-            yield RawMessage(msg.log_time, ch.topic, i, self._thunk(ch, msg.data))
-        if damaged:
-            self.stopped_at = (f"{self.path}: skipped {len(damaged)} damaged chunk{'s' if len(damaged) > 1 else ''} "
-                               f"and read the rest ({n} messages): {'; '.join(damaged[:3])}"
-                               + (f"; and {len(damaged) - 3} more" if len(damaged) > 3 else ""))  # fmt: skip
+        try:
+            for ch, msg in self._indexed_messages(topics, damaged):
+                i = counts.get(ch.topic, 0)
+                counts[ch.topic] = i + 1
+                n += 1
+                yield RawMessage(msg.log_time, ch.topic, i, self._thunk(ch, msg.data))
+        finally:  # also when the reader stops early (a time window's end): the damage met so far
+            if damaged:
+                self.stopped_at = (f"{self.path}: skipped {len(damaged)} damaged chunk{'s' if len(damaged) > 1 else ''}"
+                                   f" and read the rest ({n} messages): {'; '.join(damaged[:3])}"
+                                   + (f"; and {len(damaged) - 3} more" if len(damaged) > 3 else ""))  # fmt: skip
 
     def _indexed_messages(self, topics: set[str], damaged: list[str]) -> Iterator[tuple[Any, Any]]:
         """(channel, message) of ``topics`` in log-time order, chunk by chunk through the summary's

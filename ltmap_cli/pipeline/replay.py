@@ -170,6 +170,7 @@ class Replay:
         self._warm_depth: set = set()  # (dtype, contiguous) of the raw depth images warmed up
         self._done_s = 0.0  # log time done, for the progress of the phases after the log
         self.log_total_s = 0.0
+        self._window_start_ns = 0  # the first log time mapped (the log's first message, or replay.start_s after it)
         self._warm = False
 
     def run(self) -> dict:
@@ -247,7 +248,8 @@ class Replay:
             sel = logs.select(scan_topics=cfg.replay.scan_topics, cloud_topics=cfg.replay.cloud_topics,
                               depth_topics=cfg.replay.depth_topics)  # fmt: skip
             run.log_start_ns = logs.start_ns
-            self.log_total_s = max((logs.end_ns - logs.start_ns) / NS, 1e-9)
+            start_ns, end_ns = self._window(logs)
+            self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
             if not kernels_cached():  # the first run: compile while the log is read and checked
                 self._compile = BackgroundCompile(replay_groups(cfg.replay, bool(sel.depths) and self.fast))
             for s in self.sinks:
@@ -257,7 +259,9 @@ class Replay:
                                        base_frame=cfg.map.robot.base_frame)  # fmt: skip
             self.caster = FrameCaster(run.lmap, cfg, fast=self.fast)
             self.executor = OrderedExecutor(self.threads)
-            stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate)
+            stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate,
+                                   start_ns=start_ns if cfg.replay.start_s > 0 else None,
+                                   end_ns=end_ns if cfg.replay.end_s > 0 else None)  # fmt: skip
             reader = open_reader(stream, timer.seconds, self.threads)
             try:
                 self._feed_localization(None)
@@ -272,7 +276,7 @@ class Replay:
                 for job in self.executor.drain():
                     self._integrate(*job)
                 if logs.stats.stopped_at is None:  # the whole log was read: the bar ends at 100 %
-                    self._report_progress(logs.end_ns, force=True)
+                    self._report_progress(end_ns, force=True)
             finally:
                 reader.close()
                 self.executor.close()
@@ -284,9 +288,25 @@ class Replay:
                 "messages_not_decoded": dict(getattr(logs, "skipped", {}) or {}),
                 "frames_over_depth_max_rate": dict(logs.rate_skipped),
                 "stopped_at": stats.stopped_at,
+                "window": None if not (cfg.replay.start_s or cfg.replay.end_s) else {
+                    "start_s": round((start_ns - logs.start_ns) / NS, 3), "end_s": round((end_ns - logs.start_ns) / NS, 3),
+                    "messages_not_decoded_before_start": dict(logs.before_start)},  # fmt: skip
             }
         self._check_used(sel, inputs["messages_not_decoded"])
         return self._finish(run, inputs, static_info, resume_info)
+
+    def _window(self, logs) -> tuple[int, int]:
+        """The log times mapped: ``replay.start_s`` / ``end_s`` after the log's first message (the
+        whole log by default); a start past the log's end is refused."""
+        rc = self.cfg.replay
+        start_ns = logs.start_ns + int(round(rc.start_s * NS))
+        end_ns = min(logs.start_ns + int(round(rc.end_s * NS)), logs.end_ns) if rc.end_s > 0 else logs.end_ns
+        if start_ns > logs.end_ns:
+            raise InputError(f"--start {rc.start_s:g} s is past the end of {', '.join(str(p) for p in self.req.logs)} "
+                             f"(it lasts {(logs.end_ns - logs.start_ns) / NS:.1f} s from its first message); give a "
+                             f"start within it")  # fmt: skip
+        self._window_start_ns = start_ns
+        return start_ns, end_ns
 
     def _check_used(self, sel, not_decoded: dict) -> None:
         """A run in which no frame was integrated fails, naming why (SPEC 4)."""
@@ -303,6 +323,12 @@ class Replay:
             reason, n = max(damaged.items(), key=lambda kv: kv[1])
             raise InputError(f"no usable sensor frame in {logs}: {reason} ({n} x, every one); the log is damaged "
                              "there, or its message definitions are wrong: check it with `ltmap info`")  # fmt: skip
+        rc = self.cfg.replay
+        if rc.start_s or rc.end_s:
+            end = f"{rc.end_s:g} s" if rc.end_s else "the log's end"
+            raise InputError(f"no sensor frames in {logs} between --start {rc.start_s:g} s and {end} (log time from its "
+                             f"first message) on topics {', '.join(sel.sensor_topics) or '(none)'}; widen the window, "
+                             f"or check when the sensors publish with `ltmap info`")  # fmt: skip
         raise InputError(f"no sensor frames in {logs} on topics {', '.join(sel.sensor_topics) or '(none)'}; "
                          "check the topics with `ltmap info`")  # fmt: skip
 
@@ -474,7 +500,7 @@ class Replay:
             return
         self._last_progress = now
         if log_ns is not None:
-            self._done_s = min(max((log_ns - self.state.log_start_ns) / NS, 0.0), self.log_total_s)
+            self._done_s = min(max((log_ns - self._window_start_ns) / NS, 0.0), self.log_total_s)
         self.progress(Progress(self._done_s, self.log_total_s, sum(self.counts.used.values()), now - self._t_wall0,
                                phase))  # fmt: skip
 

@@ -34,6 +34,7 @@ class Report:
     stage_s: dict  # stage -> wall seconds (pipeline/timing.py)
     ticks: int
     stopped_at: str | None  # where a damaged or cut-off log stopped being read
+    window: dict | None  # --start / --end: the log times mapped (s from the log's first message), else None
     peak_memory_mb: float
     map_memory_mb: float
     voxels: dict
