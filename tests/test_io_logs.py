@@ -396,9 +396,63 @@ def test_time_window_maps_its_frames_with_the_poses_and_calibration_from_before(
     assert len(statics) == 1
     assert min(dynamic) >= start - WINDOW_LEAD_S * S and min(dynamic) <= start - WINDOW_LEAD_S * S + S // 20
     assert max(dynamic) <= end
-    assert before["/scan"] == 61 and before["/cam/depth/image_raw"] == 61
     # reading stopped at the window's end: at most one message per topic past it was read
     assert read["/scan"] <= 82 and read["/tf"] <= 163
+    if fmt in ("mcap-ros2", "mcap-ros1"):  # indexed, in many chunks: those before the lead are not even read
+        assert read["/scan"] <= 82 - 5 and read["/scan"] - before["/scan"] in (20, 21) and read["/tf"] <= 163 - 10
+    else:  # read (up to the start without decoding the sensor messages)
+        assert before["/scan"] == 61 and before["/cam/depth/image_raw"] == 61
+
+
+def test_time_window_in_an_indexed_mcap_reads_only_the_chunks_it_needs(tmp_path, monkeypatch):
+    """Chunks before the lead are left unread (their message index records say what they hold),
+    except those holding /tf_static and the last one holding the CameraInfo; an error inside the
+    window still names the message by its index in the whole log."""
+    from ltmap_cli.io import sources
+
+    path = _log(tmp_path, "mcap-ros2", _window_log(), chunk_size=4000)
+    read_at = []
+    real = sources.McapSource._chunk_records
+
+    def spy(self, chunk, pos):
+        read_at.append(chunk.message_start_time)
+        return real(self, chunk, pos)
+
+    monkeypatch.setattr(sources.McapSource, "_chunk_records", spy)
+    with open_logs(path) as logs:
+        t0, n_chunks = logs.start_ns, len(logs.sources[0].reader.get_summary().chunk_indexes)
+        start = t0 + 6 * S + S // 20
+        got = list(logs.messages(start_ns=start, end_ns=start + S))
+    n_read = len(read_at)
+    with open_logs(path) as logs:  # every chunk read: the index of each scan in the whole log
+        where = [w for _, _, _, w in logs.raw(["/scan"])]
+    from ltmap_cli.io.logs import WINDOW_LEAD_S
+
+    early = [t for t in read_at[:n_read] if t < start - WINDOW_LEAD_S * S]
+    assert n_chunks > 10 and n_read < n_chunks - 3
+    assert min(read_at[:n_read]) == t0  # the first chunk: /tf_static and the CameraInfo
+    assert len(early) <= 2
+    depth = [fr for _, _, fr in got if isinstance(fr, DepthFrame)]
+    assert len(depth) == 10 and depth[0].intrinsics.fx == 500.0
+
+    # message indexes across unread chunks: the same as when every chunk is read
+    class Boom(Exception):
+        pass
+
+    seen = {}
+    real_iter = sources.McapSource.iter
+
+    def indexes(self, topics, skip=None):
+        for m in real_iter(self, topics, skip):
+            if m.topic == "/scan":
+                seen[m.log_time_ns] = m.index
+            yield m
+
+    monkeypatch.setattr(sources.McapSource, "iter", indexes)
+    with open_logs(path) as logs:
+        list(logs.messages(start_ns=start, end_ns=start + S))
+    assert seen and all(f"message index {i} " in where[i] for i in seen.values())
+    assert [i for _, i in sorted(seen.items())][-1] == 70  # the scan of 7.0 s (the 71st)
 
 
 @pytest.mark.parametrize("scan_k, fails", [(20, True), (50, False)])

@@ -63,7 +63,7 @@ from . import decode as dec
 from . import realsense
 from .bounded import DEFAULT_MAX_MESSAGE_MB
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
-from .sources import Source, TopicInfo, normalize_type, open_source
+from .sources import SkipBefore, Source, TopicInfo, normalize_type, open_source
 
 __all__ = [
     "open_logs", "LogSet", "TopicInfo", "TopicSelection", "select_topics", "TruncatedLogError",
@@ -267,10 +267,11 @@ class LogSet:
         for topic, t, decode, where, _ in self._raw(topics):
             yield topic, t, decode, where
 
-    def _raw(self, topics: Iterable[str]) -> Iterator[tuple[str, int, Any, str, int]]:
-        """``raw`` with the index (in ``paths``) of the log each message comes from."""
+    def _raw(self, topics: Iterable[str], skip: SkipBefore | None = None) -> Iterator[tuple[str, int, Any, str, int]]:
+        """``raw`` with the index (in ``paths``) of the log each message comes from; ``skip``: what
+        the sources may leave unread (``sources.SkipBefore``)."""
         wanted = set(topics)
-        streams = [self._tagged(src, wanted, k) for k, src in enumerate(self.sources)]
+        streams = [self._tagged(src, wanted, k, skip) for k, src in enumerate(self.sources)]
         last: dict[str, tuple[int, int]] = {}  # topic -> (log time, source) of its last message
         twice: Counter[tuple[str, int, int]] = Counter()  # (topic, source a, source b) -> messages
         several = len(streams) > 1  # one log cannot repeat another
@@ -297,8 +298,9 @@ class LogSet:
         self._finish()
 
     @staticmethod
-    def _tagged(src: Source, wanted: set[str], k: int) -> Iterator[tuple[int, str, Any, str, int]]:
-        it = src.iter(wanted)
+    def _tagged(src: Source, wanted: set[str], k: int,
+                skip: SkipBefore | None = None) -> Iterator[tuple[int, str, Any, str, int]]:
+        it = src.iter(wanted, skip)
         try:
             for m in it:
                 yield m.log_time_ns, m.topic, m.decode, f"on {m.topic}, message index {m.index} in {src.path}", k
@@ -358,7 +360,12 @@ class LogSet:
         latest_info: dict[str, Any] = {}  # topic -> (decode, where, parser) of its newest message
         good_info: dict[str, Any] = {}  # topic -> its newest message that could be decoded
         lead_ns = start_ns - int(WINDOW_LEAD_S * 1e9) if start_ns is not None else None
-        stream = self._raw(kinds)
+        skip = None
+        if lead_ns is not None:  # what an indexed MCAP need not read: what lies before the lead, but /tf_static,
+            # and the CameraInfo and depth units messages last before it
+            skip = SkipBefore(lead_ns, frozenset(static & set(kinds)),
+                              frozenset(t for t, k in kinds.items() if k in ("info", "units")))  # fmt: skip
+        stream = self._raw(kinds, skip)
         for topic, t, decode, where, log in stream:
             if end_ns is not None and t > end_ns:  # past the window: stop reading
                 stream.close()

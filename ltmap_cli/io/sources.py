@@ -77,6 +77,17 @@ def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -
     return f"{path}: reading stopped after {count} messages{where} ({reason})"
 
 
+@dataclass(frozen=True)
+class SkipBefore:
+    """What a reader may leave unread: messages logged before ``ns``, except every message of the
+    ``keep_all`` topics (/tf_static) and the last one before ``ns`` of the ``keep_last`` topics
+    (CameraInfo). A hint: a source that cannot seek reads them anyway (the caller filters)."""
+
+    ns: int
+    keep_all: frozenset = frozenset()
+    keep_last: frozenset = frozenset()
+
+
 class Source:
     note: str | None = None  # said once when opened (a ROS 1 bag read by scanning)
     path: Path
@@ -86,7 +97,7 @@ class Source:
     end_ns: int | None
     stopped_at: str | None = None
 
-    def iter(self, topics: set[str]) -> Iterator[RawMessage]:  # pragma: no cover - interface
+    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:  # pragma: no cover
         raise NotImplementedError
 
     def close(self) -> None:
@@ -248,7 +259,7 @@ class Ros1Source(Source):
                          f"in the middle of a record)")
         return "; ".join(parts) or None
 
-    def iter(self, topics: set[str]) -> Iterator[RawMessage]:
+    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
         wanted = {cid for cid, (topic, _) in self.conns.items() if topic in topics}
         if not wanted:
             return
@@ -349,7 +360,7 @@ class Ros2BagSource(Source):
         self.start_ns = self.reader.start_time if count else None
         self.end_ns = self.reader.end_time - 1 if count else None
 
-    def iter(self, topics: set[str]) -> Iterator[RawMessage]:
+    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
         conns = [c for c in self.reader.connections if c.topic in topics]
         if not conns:
             return
@@ -499,7 +510,7 @@ class McapSource(Source):
                       uncompressed_size=chunk.uncompressed_size)
         return breakup_chunk(plain, validate_crc=True)
 
-    def iter(self, topics: set[str]) -> Iterator[RawMessage]:
+    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
         if not topics:
             return
         if not self.indexed:
@@ -512,7 +523,11 @@ class McapSource(Source):
         n = 0
         damaged: list[str] = []
         try:
-            for ch, msg in self._indexed_messages(topics, damaged):
+            for ch, msg in self._indexed_messages(topics, damaged, skip):
+                if ch is None:  # a chunk left unread: its messages per topic (the indexes stay those of the log)
+                    for topic, k in msg.items():
+                        counts[topic] = counts.get(topic, 0) + k
+                    continue
                 i = counts.get(ch.topic, 0)
                 counts[ch.topic] = i + 1
                 n += 1
@@ -523,11 +538,17 @@ class McapSource(Source):
                                    f" and read the rest ({n} messages): {'; '.join(damaged[:3])}"
                                    + (f"; and {len(damaged) - 3} more" if len(damaged) > 3 else ""))  # fmt: skip
 
-    def _indexed_messages(self, topics: set[str], damaged: list[str]) -> Iterator[tuple[Any, Any]]:
+    def _indexed_messages(self, topics: set[str], damaged: list[str],
+                          skip: SkipBefore | None = None) -> Iterator[tuple[Any, Any]]:
         """(channel, message) of ``topics`` in log-time order, chunk by chunk through the summary's
         chunk indexes (as mcap's SeekingReader does). A chunk that cannot be read (CRC mismatch,
         bad compression, cut short) is skipped and described in ``damaged``: the chunks after it
-        are still read, so one bad block of the disk loses its own seconds of log only."""
+        are still read, so one bad block of the disk loses its own seconds of log only.
+
+        ``skip``: the chunks whose messages all lie before ``skip.ns`` are not read (nor their
+        damage seen), unless one holds a ``keep_all`` topic or is the last such chunk holding a
+        ``keep_last`` topic, or its message index records (which name its channels) cannot be
+        read; for each, (None, {topic: messages}) is yielded in its place, from those records."""
         import heapq
         import io
 
@@ -536,16 +557,20 @@ class McapSource(Source):
 
         summary = self.reader.get_summary()
         ids = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
+        chunks = [ci for ci in summary.chunk_indexes
+                  if not ci.message_index_offsets or ids.intersection(ci.message_index_offsets)]  # fmt: skip
+        unread = self._unread(chunks, ids, summary.channels, skip) if skip is not None else {}
         heap: list[tuple] = []
-        for ci in summary.chunk_indexes:
-            if ci.message_index_offsets and not ids.intersection(ci.message_index_offsets):
-                continue  # no message of these topics in it
-            heap.append((ci.message_start_time, 0, ci.chunk_start_offset, 0, ci))
+        for ci in chunks:
+            if ci.chunk_start_offset in unread:  # its place in time: the per-topic message counts go on
+                heap.append((ci.message_start_time, -1, ci.chunk_start_offset, 0, (None, unread[ci.chunk_start_offset])))
+            else:
+                heap.append((ci.message_start_time, 0, ci.chunk_start_offset, 0, ci))
         heapq.heapify(heap)
         t0 = self.start_ns or 0
         while heap:
             item = heapq.heappop(heap)
-            if item[1] == 1:
+            if item[1] != 0:  # a message, or an unread chunk's counts
                 yield item[4]
                 continue
             ci = item[4]
@@ -565,6 +590,48 @@ class McapSource(Source):
                 if isinstance(record, Message) and record.channel_id in ids:
                     heapq.heappush(heap, (record.log_time, 1, ci.chunk_start_offset, index,
                                           (summary.channels[record.channel_id], record)))  # fmt: skip
+
+    def _unread(self, chunks: list, ids: set[int], channels: dict, skip: SkipBefore) -> dict[int, dict[str, int]]:
+        """{chunk offset: {topic: messages}} of the chunks ``skip`` lets go unread."""
+        early = [ci for ci in chunks if ci.message_end_time < skip.ns and ci.message_index_offsets]
+        keep = set()
+        for ci in early:
+            if any(channels[c].topic in skip.keep_all for c in ci.message_index_offsets if c in channels):
+                keep.add(ci.chunk_start_offset)
+        for topic in skip.keep_last:
+            holding = [ci for ci in early if any(c in channels and channels[c].topic == topic
+                                                 for c in ci.message_index_offsets)]  # fmt: skip
+            if holding:
+                keep.add(max(holding, key=lambda ci: (ci.message_end_time, ci.chunk_start_offset)).chunk_start_offset)
+        out = {}
+        for ci in early:
+            if ci.chunk_start_offset in keep:
+                continue
+            counts = self._index_counts(ci, ids, channels)
+            if counts is not None:  # (else it is read: its channels are not known for sure)
+                out[ci.chunk_start_offset] = counts
+        return out
+
+    def _index_counts(self, ci: Any, ids: set[int], channels: dict) -> dict[str, int] | None:
+        """Messages per topic (of channels ``ids``) in the chunk of ``ci``, from its message index
+        records (15 bytes a channel: the chunk itself is not read); None when one cannot be read."""
+        out: dict[str, int] = {}
+        try:
+            for cid, off in ci.message_index_offsets.items():
+                if cid not in ids:
+                    continue
+                self.file.seek(off)
+                head = self.file.read(15)  # opcode, record length, channel id, records' length
+                if len(head) != 15 or head[0] != 0x07:
+                    return None
+                ch_id, rec_len = struct.unpack_from("<HI", head, 9)
+                if ch_id != cid or rec_len % 16 or cid not in channels:
+                    return None
+                topic = channels[cid].topic
+                out[topic] = out.get(topic, 0) + rec_len // 16
+        except OSError:
+            return None
+        return out
 
     def close(self) -> None:
         self.file.close()

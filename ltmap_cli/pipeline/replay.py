@@ -289,8 +289,7 @@ class Replay:
                 "frames_over_depth_max_rate": dict(logs.rate_skipped),
                 "stopped_at": stats.stopped_at,
                 "window": None if not (cfg.replay.start_s or cfg.replay.end_s) else {
-                    "start_s": round((start_ns - logs.start_ns) / NS, 3), "end_s": round((end_ns - logs.start_ns) / NS, 3),
-                    "messages_not_decoded_before_start": dict(logs.before_start)},  # fmt: skip
+                    "start_s": round((start_ns - logs.start_ns) / NS, 3), "end_s": round((end_ns - logs.start_ns) / NS, 3)},
             }
         self._check_used(sel, inputs["messages_not_decoded"])
         return self._finish(run, inputs, static_info, resume_info)
