@@ -24,7 +24,7 @@ seconds) and the sizes of what grows with the log every 0.5 s. Printed:
   allocated and times thinned, transitions, O and D blocks, trajectory points, tf samples buffered;
 - at the end: total wall, peak RSS (ru_maxrss), the end phase (wall from the progress callback at
   the log's end to the end of ``run()``, split by sink ``finish`` and, in the events sink, by
-  ``find_events`` / ``event_history``; and the report's stage times, ``stage_s``), the final
+  ``find_events`` / ``event_histories``; and the report's stage times, ``stage_s``), the final
   sizes of the event history, transitions, O and D blocks and of the Python lists that grow per
   frame (``RunState.trajectory``, the MetricsSink's ``frame_ms`` / ``stamps`` / ``tick_ms``), the
   warnings the run raised, report.json's event count and events.csv's rows.
@@ -349,8 +349,9 @@ def child(log: Path, out: Path, segment_s: float) -> None:
     for cls in [Replay, *Sink.__subclasses__()]:
         name = "_finish" if cls is Replay else "finish"
         setattr(cls, name, _timed(getattr(cls, name), f"{cls.__name__}.{name}", finish_s))
-    for name in ("find_events", "event_history"):  # EventsSink.finish's two parts (module globals)
-        setattr(sinks_mod, name, _timed(getattr(sinks_mod, name), name, finish_s))
+    for name in ("find_events", "event_histories", "event_history"):  # EventsSink.finish's parts (module globals)
+        if hasattr(sinks_mod, name):  # (event_history in the code before 5d48ccd)
+            setattr(sinks_mod, name, _timed(getattr(sinks_mod, name), name, finish_s))
     run = Replay(cfg, ReplayRequest([log], out / "replay"), progress=on_progress)
     samples: list[dict] = []
     stop = threading.Event()

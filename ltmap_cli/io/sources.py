@@ -629,7 +629,7 @@ class McapSource(Source):
                     return None
                 topic = channels[cid].topic
                 out[topic] = out.get(topic, 0) + rec_len // 16
-        except OSError:
+        except (OSError, ValueError):  # (an offset no file has)
             return None
         return out
 
