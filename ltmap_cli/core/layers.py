@@ -40,9 +40,7 @@ from .grid import (
 from .projective import (
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
-    depth_range_image,
-    ends_box,
-    projective_blocks,
+    depth_projection_blocks,
     projective_keys,
 )
 from .raycast import (
@@ -289,7 +287,7 @@ def _record_transition(ev, kind, db, doff, tick_index, since):
     ev.tr_meta[0] = n + 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, near, s, ev, counters):
     """Tick rules for the voxels observed in this tick (``tb_block``/``tb_off``[start:n_tb]):
     O's ``logodds`` and ``hit_mark`` (``o_coords`` its block coordinates), D's layers ``d``
@@ -420,7 +418,7 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
     return TICK_DONE
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _queue_obstacles(tb_block, tb_off, n_tb, o_coords, d_keys, d_vals, last_obs, tick_index, due, fq_vid, fq_due,
                      fq_meta):  # fmt: skip
     """Append the voxels seen as obstacles in this tick (last_obs == tick_index) to the forget
@@ -454,7 +452,7 @@ def _queue_obstacles(tb_block, tb_off, n_tb, o_coords, d_keys, d_vals, last_obs,
     return True
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _forget_due(vids, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi, hist_i, hist_v,
                 hist_p, hist_meta):  # fmt: skip
     """``_forget_kernel``'s rule for the queued voxels due by this tick (``vids``: their ids,
@@ -806,25 +804,13 @@ class LayeredMap:
         frame's ``depth_rays`` gave ``ends``). Reads no map state (a worker thread's part)."""
         depth, unit_mm = _depth_view(depth)
         T = np.ascontiguousarray(T, dtype=np.float64)
-        band = float(self.cfg.sensor.projective_band)
-        reach, tmin, tmax, dil = depth_range_image(depth, unit_mm, float(fx), float(fy), float(cx), float(cy),
-                                                   float(max_range), band)  # fmt: skip
         R, t = T[:3, :3], T[:3, 3]
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
-        box = ends_box(np.ascontiguousarray(t), ends, 1.0 / self.resolution)
-        # blocks with misses, in chunks (memory follows the frustum's free space, not the box: a
-        # box at 0.01 m holds millions of blocks)
-        nb = int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1))
-        cap = min(nb, PROJECTIVE_CHUNK_BLOCKS)
-        parts, nxt = [], 0
-        while nxt >= 0:
-            keys, masks = np.empty(cap, dtype=np.int64), np.empty((cap, 8), dtype=np.uint64)
-            n, nxt = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv, box,
-                                       self.resolution, band, keys, masks, nxt)  # fmt: skip
-            parts.append((keys[:n], masks[:n]))
-        if len(parts) == 1:
-            return DepthProjection(*parts[0])
-        return DepthProjection(np.concatenate([k for k, _ in parts]), np.concatenate([m for _, m in parts]))
+        keys, masks = depth_projection_blocks(depth, unit_mm, float(fx), float(fy), float(cx), float(cy),
+                                              np.ascontiguousarray(t), Tinv, float(max_range),
+                                              float(self.cfg.sensor.projective_band), ends, self.resolution,
+                                              PROJECTIVE_CHUNK_BLOCKS)  # fmt: skip
+        return DepthProjection(keys, masks)
 
     def projective_tail(self) -> float:
         """How far before its end a depth ray is walked in projective mode (m): the band and an
