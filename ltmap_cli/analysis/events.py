@@ -97,7 +97,7 @@ def _group(keys: np.ndarray, ticks: np.ndarray, window: int, link: int) -> np.nd
 _BOFF = np.int64(1 << 20)  # bucket coordinates within +-2^20 (300 km at 0.05 m, buckets of 6 voxels)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _find(parent, a):
     while parent[a] != a:
         parent[a] = parent[parent[a]]
@@ -105,7 +105,7 @@ def _find(parent, a):
     return a
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _group_kernel(keys, ticks, sorted_packed, order, window, link):
     n = keys.shape[0]
     parent = np.arange(n)

@@ -62,7 +62,7 @@ class PlanResult:
 # kernels (numba; compiled on first call, cached on disk)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _row_distance(occ):
     # horizontal distance (cells) from each cell to the nearest occupied cell of its row
     h, w = occ.shape
@@ -84,7 +84,7 @@ def _row_distance(occ):
     return d
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _disk_dilate(rowd, r2, ri):
     # out[r, c] = exists dy in [-ri, ri] with rowd[r+dy, c]^2 + dy^2 <= r2
     h, w = rowd.shape
@@ -103,7 +103,7 @@ def _disk_dilate(rowd, r2, ri):
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _connected(free, w_pad, start, goal):
     # Are start and goal in one 4-connected component of ``free`` (flat, padded with a blocked
     # border)? 8-connected moves without corner cutting connect exactly the same cells. Two
@@ -150,7 +150,7 @@ def _connected(free, w_pad, start, goal):
                     b_tail -= 1
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _astar(blocked, sr, sc, gr, gc):
     # blocked: uint8 (H, W). Returns (found, length, expanded, path (K, 2) int64).
     # The grid is copied into a flat array with a one-cell blocked border (no bounds checks);

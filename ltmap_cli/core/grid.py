@@ -67,7 +67,7 @@ def voxel_offset(i, j, k):
     return ((i & BLOCK_MASK) << (2 * BLOCK_BITS)) | ((j & BLOCK_MASK) << BLOCK_BITS) | (k & BLOCK_MASK)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def find_block(table_keys, table_vals, bx, by, bz):
     """Index of block (bx, by, bz) or -1 when it was never allocated."""
     mask = table_keys.shape[0] - 1
@@ -82,7 +82,7 @@ def find_block(table_keys, table_vals, bx, by, bz):
         s = (s + 1) & mask
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz):
     """Index of block (bx, by, bz), allocating it if needed; -1 when the pool is full."""
     mask = table_keys.shape[0] - 1
@@ -106,7 +106,7 @@ def get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz):
         s = (s + 1) & mask
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _rehash(block_coords, n_blocks, capacity):
     keys = np.full(capacity, EMPTY_KEY, dtype=np.int64)
     vals = np.full(capacity, -1, dtype=np.int32)
@@ -121,7 +121,7 @@ def _rehash(block_coords, n_blocks, capacity):
     return keys, vals
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _lookup_many(table_keys, table_vals, keys):
     n = keys.shape[0]
     blocks = np.empty(n, dtype=np.int64)
@@ -133,7 +133,7 @@ def _lookup_many(table_keys, table_vals, keys):
     return blocks, offs
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _add_many(table_keys, table_vals, block_coords, meta, keys, blocks, offs, start):
     """Allocate the blocks of ``keys[start:]``; returns the first index not done (== len when done)."""
     for t in range(start, keys.shape[0]):

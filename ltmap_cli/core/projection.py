@@ -116,7 +116,7 @@ class Projection:
 
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _project_o(coords, n_blocks, logodds, stamp, k_lo, k_hi, i0, j0, seen_free):
     H, W = seen_free.shape
     for b in range(n_blocks):
@@ -144,7 +144,7 @@ def _project_o(coords, n_blocks, logodds, stamp, k_lo, k_hi, i0, j0, seen_free):
                         break
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _project_lt(coords, n_blocks, lt, k_lo, k_hi, i0, j0, value):
     H, W = value.shape
     for b in range(n_blocks):
@@ -254,7 +254,7 @@ def static_fills(lmap, cols: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _o_column_occupied(table_keys, table_vals, logodds, stamp, since, i, j, k_lo, k_hi):
     bx = i >> BLOCK_BITS
     by = j >> BLOCK_BITS
@@ -272,7 +272,7 @@ def _o_column_occupied(table_keys, table_vals, logodds, stamp, since, i, j, k_lo
     return False
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _virtual_scan_kernel(
     x, y, yaw, angles, range_min, range_max, res,
     p_data, p_i0, p_j0, table_keys, table_vals, logodds, stamp, since, k_lo, k_hi, use_o,
