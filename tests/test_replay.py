@@ -535,6 +535,7 @@ def test_replay_of_a_time_window(tmp_path):
     assert rep["window"] == {"start_s": 10.0, "end_s": 20.0}
     assert rep["log_duration_s"] == 10.0 and rep["frames_used"] == {"/scan": len(scans)} and not rep["frames_skipped"]
     assert "replayed 10.0 s of log" in r.stdout
+    assert "the window mapped (--start / --end) lasts 10.0 s, shorter than" in r.stderr  # LT's rise needs 15 s
     for args, words in ((["--start", "99"], ["--start 99 s is past the end", "it lasts"]),
                         (["--start", "5", "--end", "5"], ["replay.end_s (5 s) must be after replay.start_s"]),
                         (["--end", "-1"], ["must be >= 0"])):

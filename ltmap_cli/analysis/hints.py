@@ -68,10 +68,11 @@ def _long_term_hint(report: dict, st_rise_s: float) -> str | None:
     if seen == 0 or lt >= LT_NEARLY_EMPTY * seen:
         return None
     duration = float(report.get("log_duration_s") or 0.0)
+    what = "the window mapped (--start / --end)" if report.get("window") else "the log"
     if duration < st_rise_s:
-        why = f"the log lasts {duration:.1f} s, shorter than that"
+        why = f"{what} lasts {duration:.1f} s, shorter than that"
     else:
-        why = f"the log lasts {duration:.1f} s, and little stayed in view that long"
+        why = f"{what} lasts {duration:.1f} s, and little stayed in view that long"
     proposal = f"; for a short log lower it, e.g. --set map.layers.st_rise_s={ST_RISE_HINT_S:g}" \
         if st_rise_s > ST_RISE_HINT_S else ""
     return (f"the long-term map is nearly empty ({lt} voxels; {seen} seen occupied): a voxel enters it after "
