@@ -174,12 +174,13 @@ def yaw_quat(yaw: float) -> tuple[float, float, float, float]:
 
 def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
               extra_types: dict[str, str] | None = None, chunk_size: int = 1024 * 1024,
-              compress: bool = True) -> Path:
+              compress: bool = True, ros1_chunk_size: int | None = None) -> Path:
     """Write ``messages`` (in the given order) as a log of format ``fmt`` at ``path``.
 
     ``path`` is the bag file, the ROS 2 bag folder or the .mcap file; it must not exist.
     ``chunk_size`` (bytes) applies to standalone MCAP: small values give several chunks;
-    ``compress=False`` writes ros2-profile MCAP chunks uncompressed (bytes to corrupt by hand).
+    ``compress=False`` writes ros2-profile MCAP chunks uncompressed (bytes to corrupt by hand);
+    ``ros1_chunk_size`` (bytes) the ROS 1 bag's chunks (rosbags' default: 1 MB).
     Returns ``path``.
     """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -200,6 +201,8 @@ def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
         from rosbags.rosbag1 import Writer as Writer1
 
         with Writer1(path) as w:
+            if ros1_chunk_size is not None:
+                w.chunk_threshold = ros1_chunk_size
             conns: dict[str, Any] = {}
             for m in messages:
                 if m.topic not in conns:

@@ -377,7 +377,7 @@ def test_time_window_maps_its_frames_with_the_poses_and_calibration_from_before(
     at 0 s); what lies before the start is not decoded, and reading stops after the end."""
     from ltmap_cli.io.logs import WINDOW_LEAD_S
 
-    path = _log(tmp_path, fmt, _window_log(), chunk_size=4000)
+    path = _log(tmp_path, fmt, _window_log(), chunk_size=4000, ros1_chunk_size=4000)
     with open_logs(path) as logs:
         t0 = logs.start_ns
         start, end = t0 + 6 * S + S // 20, t0 + 8 * S + S // 20  # 6.05 s .. 8.05 s
@@ -398,36 +398,47 @@ def test_time_window_maps_its_frames_with_the_poses_and_calibration_from_before(
     assert max(dynamic) <= end
     # reading stopped at the window's end: at most one message per topic past it was read
     assert read["/scan"] <= 82 and read["/tf"] <= 163
-    if fmt in ("mcap-ros2", "mcap-ros1"):  # indexed, in many chunks: those before the lead are not even read
+    if fmt in ("mcap-ros2", "mcap-ros1", "ros1"):  # indexed, in many chunks: those before the lead are not even read
         assert read["/scan"] <= 82 - 5 and read["/scan"] - before["/scan"] in (20, 21) and read["/tf"] <= 163 - 10
     else:  # read (up to the start without decoding the sensor messages)
         assert before["/scan"] == 61 and before["/cam/depth/image_raw"] == 61
 
 
-def test_time_window_in_an_indexed_mcap_reads_only_the_chunks_it_needs(tmp_path, monkeypatch):
-    """Chunks before the lead are left unread (their message index records say what they hold),
-    except those holding /tf_static and the last one holding the CameraInfo; an error inside the
-    window still names the message by its index in the whole log."""
-    from ltmap_cli.io import sources
+@pytest.mark.parametrize("fmt", ["mcap-ros2", "ros1"])
+def test_time_window_in_an_indexed_log_reads_only_the_chunks_it_needs(tmp_path, monkeypatch, fmt):
+    """Chunks before the lead are left unread (an MCAP's message index records, a bag's chunk
+    infos say what they hold), except those holding /tf_static and the last one holding the
+    CameraInfo; an error inside the window still names the message by its index in the whole log."""
+    from ltmap_cli.io import ros1bag, sources
+    from ltmap_cli.io.logs import WINDOW_LEAD_S
 
-    path = _log(tmp_path, "mcap-ros2", _window_log(), chunk_size=4000)
+    path = _log(tmp_path, fmt, _window_log(), chunk_size=4000, ros1_chunk_size=4000)
     read_at = []
-    real = sources.McapSource._chunk_records
+    if fmt == "ros1":
+        real_read = ros1bag.Ros1Bag._read_chunk
 
-    def spy(self, chunk, pos):
-        read_at.append(chunk.message_start_time)
-        return real(self, chunk, pos)
+        def spy(self, ch):
+            read_at.append(ch.start_ns)
+            return real_read(self, ch)
 
-    monkeypatch.setattr(sources.McapSource, "_chunk_records", spy)
+        monkeypatch.setattr(ros1bag.Ros1Bag, "_read_chunk", spy)
+    else:
+        real_read = sources.McapSource._chunk_records
+
+        def spy(self, chunk, pos):
+            read_at.append(chunk.message_start_time)
+            return real_read(self, chunk, pos)
+
+        monkeypatch.setattr(sources.McapSource, "_chunk_records", spy)
     with open_logs(path) as logs:
-        t0, n_chunks = logs.start_ns, len(logs.sources[0].reader.get_summary().chunk_indexes)
+        src = logs.sources[0]
+        t0 = logs.start_ns
+        n_chunks = len(src.bag.layout.chunks) if fmt == "ros1" else len(src.reader.get_summary().chunk_indexes)
         start = t0 + 6 * S + S // 20
         got = list(logs.messages(start_ns=start, end_ns=start + S))
     n_read = len(read_at)
     with open_logs(path) as logs:  # every chunk read: the index of each scan in the whole log
         where = [w for _, _, _, w in logs.raw(["/scan"])]
-    from ltmap_cli.io.logs import WINDOW_LEAD_S
-
     early = [t for t in read_at[:n_read] if t < start - WINDOW_LEAD_S * S]
     assert n_chunks > 10 and n_read < n_chunks - 3
     assert min(read_at[:n_read]) == t0  # the first chunk: /tf_static and the CameraInfo
@@ -436,11 +447,9 @@ def test_time_window_in_an_indexed_mcap_reads_only_the_chunks_it_needs(tmp_path,
     assert len(depth) == 10 and depth[0].intrinsics.fx == 500.0
 
     # message indexes across unread chunks: the same as when every chunk is read
-    class Boom(Exception):
-        pass
-
     seen = {}
-    real_iter = sources.McapSource.iter
+    cls = sources.Ros1Source if fmt == "ros1" else sources.McapSource
+    real_iter = cls.iter
 
     def indexes(self, topics, skip=None):
         for m in real_iter(self, topics, skip):
@@ -448,7 +457,7 @@ def test_time_window_in_an_indexed_mcap_reads_only_the_chunks_it_needs(tmp_path,
                 seen[m.log_time_ns] = m.index
             yield m
 
-    monkeypatch.setattr(sources.McapSource, "iter", indexes)
+    monkeypatch.setattr(cls, "iter", indexes)
     with open_logs(path) as logs:
         list(logs.messages(start_ns=start, end_ns=start + S))
     assert seen and all(f"message index {i} " in where[i] for i in seen.values())

@@ -26,7 +26,7 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from .bounded import DecompressError, TooLargeError, decompress, too_large
 
@@ -442,19 +442,35 @@ class Ros1Bag:
 
     # ------------------------------------------------------------------ reading
 
-    def messages(self, wanted: set[int], damaged: list[str]) -> Iterator[tuple[int, int, memoryview]]:
+    def messages(self, wanted: set[int], damaged: list[str], skip_ns: int | None = None, keep_all: frozenset = frozenset(),
+                 keep_last: frozenset = frozenset()) -> Iterator[tuple[int, int, Any]]:
         """(time, connection, data) of the wanted connections' messages in time order (file
         order among equal times). A chunk that cannot be read is skipped and described in
-        ``damaged``."""
+        ``damaged``. ``skip_ns``: the chunks whose messages all lie before it are not read, but
+        those holding a ``keep_all`` connection and the last one holding each ``keep_last``
+        connection; each gives (its start, -1, {connection: messages}) in its place instead."""
         chunks = sorted((c for c in self.layout.chunks if wanted.intersection(c.counts)),
                         key=lambda c: (c.start_ns, c.pos))
-        heap: list[tuple[int, int, int, memoryview]] = []
+        unread: set[int] = set()
+        if skip_ns is not None:
+            early = [c for c in chunks if c.end_ns < skip_ns]
+            keep = {c.pos for c in early if keep_all.intersection(c.counts)}
+            for conn in keep_last:
+                holding = [c for c in early if conn in c.counts]
+                if holding:
+                    keep.add(max(holding, key=lambda c: (c.end_ns, c.pos)).pos)
+            unread = {c.pos for c in early if c.pos not in keep}
+        heap: list[tuple[int, int, int, Any]] = []
         seq = 0
         k = 0
         while k < len(chunks) or heap:
             while k < len(chunks) and (not heap or chunks[k].start_ns <= heap[0][0]):
                 ch = chunks[k]
                 k += 1
+                if ch.pos in unread:  # its place in time: the per-connection message counts go on
+                    heapq.heappush(heap, (ch.start_ns, seq, -1, {c: n for c, n in ch.counts.items() if c in wanted}))
+                    seq += 1
+                    continue
                 try:
                     for conn, t, body in self._read_chunk(ch):
                         if conn in wanted:

@@ -266,8 +266,18 @@ class Ros1Source(Source):
         counts: dict[str, int] = {}
         damaged: list[str] = list(self.bag.layout.problems)
         n = 0
+        by_topic: dict[str, set[int]] = {}
+        for cid, (topic, _) in self.conns.items():
+            by_topic.setdefault(topic, set()).add(cid)
+        extra = {} if skip is None else {
+            "skip_ns": skip.ns, "keep_all": frozenset(c for t in skip.keep_all for c in by_topic.get(t, ())),
+            "keep_last": frozenset(c for t in skip.keep_last for c in by_topic.get(t, ()))}  # fmt: skip
         try:
-            for t, cid, body in self.bag.messages(wanted, damaged):
+            for t, cid, body in self.bag.messages(wanted, damaged, **extra):
+                if cid < 0:  # a chunk left unread: its messages per connection (the indexes stay those of the bag)
+                    for c, k in body.items():
+                        counts[self.conns[c][0]] = counts.get(self.conns[c][0], 0) + k
+                    continue
                 topic, msgtype = self.conns[cid]
                 i = counts.get(topic, 0)
                 counts[topic] = i + 1
