@@ -127,8 +127,26 @@ def cli(ctx: click.Context, debug: bool) -> None:
     ctx.obj["debug"] = debug
 
 
+FAST_EXIT = ("replay",)  # commands whose process ends without the interpreter's teardown once they succeed
+
+
 def main() -> None:
-    cli(prog_name="ltmap")
+    """The ``ltmap`` program. After a successful replay the process ends at once (``os._exit``):
+    the outputs are written and synced by then (``OutputFolder.commit``), and the interpreter's
+    teardown of numba's compiled kernels and the map's arrays took 0.15 to 0.2 s, 3 % of a 30 s
+    log's whole run. Any other outcome exits as usual."""
+    try:
+        cli(prog_name="ltmap")
+    except SystemExit as done:
+        command = str(getattr(cli, "_invoked", "")).split()[-1:]
+        if done.code in (0, None) and command and command[0] in FAST_EXIT:
+            try:
+                sys.stdout.flush()
+                sys.stderr.flush()
+            except OSError:  # a closed pipe: exit as usual
+                raise done from None
+            os._exit(0)
+        raise
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -109,3 +109,23 @@ def test_the_same_recording_in_two_formats_is_warned_about(tmp_path):
         r = _invoke(["replay", *pair, "-o", tmp_path / out, "-q", "--no-plots"])
         assert r.exit_code == 0, r.stderr
         assert [ln for ln in r.stderr.splitlines() if "warning" in ln and "st_rise_s" not in ln] == [], r.stderr
+
+
+def test_the_program_ends_a_replay_at_once_with_its_summary_and_outputs_written(tmp_path):
+    """``main`` ends a successful replay with ``os._exit`` (no interpreter teardown): the summary
+    on a pipe is flushed first, the output folder is complete; a failed replay exits as usual."""
+    import subprocess
+    import sys
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "ltmap_cli", "replay", str(log), "-o", str(out), "-q", "--no-plots",
+                        "--end", "5"], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert r.stdout.startswith("replayed 5.0 s of log") and r.stdout.rstrip().splitlines()[-1].startswith("wrote ")
+    from ltmap_cli.outputs.folder import OutputFolder
+
+    assert "report.json" in OutputFolder.completed(out, command="replay")["files"]  # every file there, synced
+    bad = subprocess.run([sys.executable, "-m", "ltmap_cli", "replay", str(tmp_path / "none.mcap"), "-o",
+                          str(tmp_path / "o2")], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert bad.returncode == 2 and bad.stderr.startswith("ltmap: error: log not found")
