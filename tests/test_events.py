@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -360,3 +361,25 @@ def test_planner_latency_only_while_the_event_changes_p():
     never = dict(ev, t_in_map_s=None, t_in_map_last_s=None)
     t.attribute([never], 0.05)
     assert never["planner_latency_s"] is None
+
+
+def test_histories_are_made_for_the_plotted_events_only(tmp_path):
+    """The ST / LT histories feed only the layer-history plot, which draws the first
+    MAX_HISTORY_EVENTS events: with plots they are made for those, without plots for none (on a
+    long log they cost seconds at the end)."""
+    from ltmap_cli.config import Config
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+    from ltmap_cli.viz.plots import MAX_HISTORY_EVENTS
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    made = {}
+    for plots in (False, True):
+        cfg = Config()
+        cfg.replay.plots = plots
+        run = Replay(cfg, ReplayRequest([log], tmp_path / str(plots)))
+        run.run()
+        made[plots] = (run.events.events, run.events.histories)
+    events, histories = made[True]
+    assert len(events) >= 2 and set(histories) == {e["id"] for e in events[:MAX_HISTORY_EVENTS]}
+    assert all(len(h["t"]) for h in histories.values())
+    assert made[False][1] == {} and [e["id"] for e in made[False][0]] == [e["id"] for e in events]

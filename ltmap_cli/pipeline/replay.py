@@ -33,6 +33,7 @@ from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
 from ..outputs.snapshots import load_resume
 from ..static.memory import human, lattice_bytes
+from ..viz.plots import MAX_HISTORY_EVENTS
 from .clock import Ticker
 from .executor import OrderedExecutor
 from .localize import localize_logs
@@ -223,7 +224,8 @@ class Replay:
         cfg = self.cfg
         planner = PlannerSink(cfg) if cfg.replay.plan_goal else None
         self.metrics = MetricsSink(cfg.map.layers.tick)
-        self.events = EventsSink(self.ticker, planner)
+        # the ST / LT histories only feed the layer-history plot, which shows the first events
+        self.events = EventsSink(self.ticker, planner, history_events=MAX_HISTORY_EVENTS if cfg.replay.plots else 0)
         sinks: list[Sink] = [planner] if planner is not None else []
         if cfg.replay.mcap_out:
             sinks.append(McapSink(run, mounts))

@@ -402,9 +402,10 @@ class EventsSink(Sink):
     name = "events"
     FILE = "events.csv"
 
-    def __init__(self, ticker, planner: PlannerSink | None = None):
+    def __init__(self, ticker, planner: PlannerSink | None = None, history_events: int | None = None):
         self.ticker = ticker
         self.annotators = [planner] if planner is not None else []
+        self.history_events = history_events  # ST / LT histories of the first this many events (None: all)
         self.events: list[dict] = []
         self.members: dict[int, np.ndarray] = {}  # event id -> its D voxel ids
         self.histories: dict = {}
@@ -431,9 +432,10 @@ class EventsSink(Sink):
         write_text_atomic(run.out / self.FILE, events_csv(events))
         self.events, self.members = events, members
         hist_i, hist_v = lmap.events.history
+        drawn = events if self.history_events is None else events[: self.history_events]
         self.histories = event_histories(
-            hist_i, hist_v, {e["id"]: members[e["id"]] for e in events}, clock,
-            {e["id"]: (e["t_start_s"] if e["t_start_s"] is not None else e["t_lt_s"]) - 5.0 for e in events})  # fmt: skip
+            hist_i, hist_v, {e["id"]: members[e["id"]] for e in drawn}, clock,
+            {e["id"]: (e["t_start_s"] if e["t_start_s"] is not None else e["t_lt_s"]) - 5.0 for e in drawn})  # fmt: skip
         lat = {"add": [e["latency_s"] for e in events if e["kind"] == "appear" and e["latency_s"] is not None],
                "remove": [e["latency_s"] for e in events if e["kind"] == "disappear" and e["latency_s"] is not None]}  # fmt: skip
         if self.annotators:
