@@ -358,12 +358,12 @@ def test_depth_camera_info_without_a_usable_calibration_is_refused(k):
 
 
 def _window_log():
-    """10 s: /tf_static and a latched CameraInfo at 0 s only, /tf at 20 Hz, scans and depth at 10 Hz."""
+    """20 s: /tf_static and a latched CameraInfo at 0 s only, /tf at 20 Hz, scans and depth at 10 Hz."""
     msgs = [tf(0, [("base_link", "camera_optical", (0.1, 0.0, 0.5))], static=True),
             camera_info("/cam/depth/camera_info", 1, width=3, height=2, fx=500.0, fy=500.0, cx=1.0, cy=0.5)]
-    for k in range(200):
+    for k in range(400):
         msgs.append(tf(k * S // 20 + 2, [("odom", "base_link", (0.01 * k, 0.0, 0.0))]))
-    for k in range(100):
+    for k in range(200):
         t = k * S // 10 + 3
         msgs.append(scan("/scan", t, [1.0 + k] * 8))
         msgs.append(image("/cam/depth/image_raw", t + 1, np.full((2, 3), 1000 + k), encoding="16UC1"))
@@ -373,38 +373,40 @@ def _window_log():
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_time_window_maps_its_frames_with_the_poses_and_calibration_from_before(tmp_path, fmt):
     """``messages(start_ns, end_ns)``: sensor frames logged in the window only; /tf from
-    WINDOW_LEAD_S before it, /tf_static and the CameraInfo from the log's start (here logged once,
-    at 0 s); what lies before the start is not decoded, and reading stops after the end."""
+    WINDOW_LEAD_S before it to as long after it, /tf_static and the CameraInfo from the log's start
+    (here logged once, at 0 s); what lies before the start is not decoded, and reading stops after
+    the trail."""
     from ltmap_cli.io.logs import WINDOW_LEAD_S
 
     path = _log(tmp_path, fmt, _window_log(), chunk_size=4000, ros1_chunk_size=4000)
     with open_logs(path) as logs:
         t0 = logs.start_ns
-        start, end = t0 + 6 * S + S // 20, t0 + 8 * S + S // 20  # 6.05 s .. 8.05 s
+        start, end = t0 + 8 * S + S // 20, t0 + 10 * S + S // 20  # 8.05 s .. 10.05 s
         got = list(logs.messages(start_ns=start, end_ns=end))
         read = dict(logs.stats.messages_per_topic)
         before = dict(logs.before_start)
     sensors = [(topic, t, fr) for topic, t, fr in got if isinstance(fr, (ScanFrame, DepthFrame))]
     assert {topic for topic, _, _ in sensors} == {"/scan", "/cam/depth/image_raw"}
     assert all(start <= t <= end for _, t, _ in sensors)
-    # scans 61..80 (6.1 .. 8.0 s): every one in the window, none outside
-    assert [fr.ranges[0] for topic, _, fr in sensors if topic == "/scan"] == [1.0 + k for k in range(61, 81)]
+    # scans 81..100 (8.1 .. 10.0 s): every one in the window, none outside
+    assert [fr.ranges[0] for topic, _, fr in sensors if topic == "/scan"] == [1.0 + k for k in range(81, 101)]
     depth = [fr for topic, _, fr in sensors if topic == "/cam/depth/image_raw"]
     assert len(depth) == 20 and depth[0].intrinsics.fx == 500.0  # the CameraInfo of 0 s
     statics = [s for _, _, s in got if isinstance(s, TfSample) and s.static]
     dynamic = [t for _, t, s in got if isinstance(s, TfSample) and not s.static]
     assert len(statics) == 1
     assert min(dynamic) >= start - WINDOW_LEAD_S * S and min(dynamic) <= start - WINDOW_LEAD_S * S + S // 20
-    assert max(dynamic) <= end
-    # reading stopped at the window's end: at most one message per topic past it was read
-    assert read["/scan"] <= 82 and read["/tf"] <= 163
-    if fmt in ("mcap-ros2", "mcap-ros1", "ros1"):  # indexed, in many chunks: those before the lead are not even read
-        assert read["/scan"] <= 82 - 5 and read["/scan"] - before["/scan"] in (20, 21) and read["/tf"] <= 163 - 10
+    # tf up to WINDOW_LEAD_S after the end (the last frames' poses), no further
+    assert end + WINDOW_LEAD_S * S - S // 20 <= max(dynamic) <= end + WINDOW_LEAD_S * S
+    # reading stopped after that trail (15.05 s): at most one message per topic past it was read
+    assert read["/scan"] <= 152 and read["/tf"] <= 303
+    if fmt in ("mcap-ros2", "mcap-ros1", "ros1", "ros2-sqlite3"):  # those before the lead are not even read
+        assert read["/scan"] <= 152 - 10 and read["/scan"] - before["/scan"] in (70, 71) and read["/tf"] <= 303 - 20
     else:  # read (up to the start without decoding the sensor messages)
-        assert before["/scan"] == 61 and before["/cam/depth/image_raw"] == 61
+        assert before["/scan"] == 81 and before["/cam/depth/image_raw"] == 81
 
 
-@pytest.mark.parametrize("fmt", ["mcap-ros2", "ros1"])
+@pytest.mark.parametrize("fmt", ["mcap-ros2", "ros1", "ros2-sqlite3"])
 def test_time_window_in_an_indexed_log_reads_only_the_chunks_it_needs(tmp_path, monkeypatch, fmt):
     """Chunks before the lead are left unread (an MCAP's message index records, a bag's chunk
     infos say what they hold), except those holding /tf_static and the last one holding the
@@ -414,7 +416,18 @@ def test_time_window_in_an_indexed_log_reads_only_the_chunks_it_needs(tmp_path, 
 
     path = _log(tmp_path, fmt, _window_log(), chunk_size=4000, ros1_chunk_size=4000)
     read_at = []
-    if fmt == "ros1":
+    if fmt == "ros2-sqlite3":  # no chunks: a query from the lead on, the messages it returns counted
+        from rosbags.rosbag2 import Reader
+
+        real_messages = Reader.messages
+
+        def spy(self, connections=(), start=None, stop=None):
+            for row in real_messages(self, connections, start, stop):
+                read_at.append(row[1])
+                yield row
+
+        monkeypatch.setattr(Reader, "messages", spy)
+    elif fmt == "ros1":
         real_read = ros1bag.Ros1Bag._read_chunk
 
         def spy(self, ch):
@@ -433,22 +446,23 @@ def test_time_window_in_an_indexed_log_reads_only_the_chunks_it_needs(tmp_path, 
     with open_logs(path) as logs:
         src = logs.sources[0]
         t0 = logs.start_ns
-        n_chunks = len(src.bag.layout.chunks) if fmt == "ros1" else len(src.reader.get_summary().chunk_indexes)
-        start = t0 + 6 * S + S // 20
+        n_chunks = (len(src.bag.layout.chunks) if fmt == "ros1" else 1000 if fmt == "ros2-sqlite3"
+                    else len(src.reader.get_summary().chunk_indexes))  # (sqlite3: the bag's 1000 messages)
+        start = t0 + 10 * S + S // 20
         got = list(logs.messages(start_ns=start, end_ns=start + S))
     n_read = len(read_at)
     with open_logs(path) as logs:  # every chunk read: the index of each scan in the whole log
         where = [w for _, _, _, w in logs.raw(["/scan"])]
     early = [t for t in read_at[:n_read] if t < start - WINDOW_LEAD_S * S]
     assert n_chunks > 10 and n_read < n_chunks - 3
-    assert min(read_at[:n_read]) == t0  # the first chunk: /tf_static and the CameraInfo
+    assert min(read_at[:n_read]) == t0  # the first chunk (message): /tf_static and the CameraInfo
     assert len(early) <= 2
     depth = [fr for _, _, fr in got if isinstance(fr, DepthFrame)]
     assert len(depth) == 10 and depth[0].intrinsics.fx == 500.0
 
     # message indexes across unread chunks: the same as when every chunk is read
     seen = {}
-    cls = sources.Ros1Source if fmt == "ros1" else sources.McapSource
+    cls = {"ros1": sources.Ros1Source, "ros2-sqlite3": sources.Ros2BagSource}.get(fmt, sources.McapSource)
     real_iter = cls.iter
 
     def indexes(self, topics, skip=None):
@@ -461,17 +475,17 @@ def test_time_window_in_an_indexed_log_reads_only_the_chunks_it_needs(tmp_path, 
     with open_logs(path) as logs:
         list(logs.messages(start_ns=start, end_ns=start + S))
     assert seen and all(f"message index {i} " in where[i] for i in seen.values())
-    assert [i for _, i in sorted(seen.items())][-1] == 70  # the scan of 7.0 s (the 71st)
+    assert 101 in seen.values() and len(seen) < 150  # the window's first scan (10.1 s), after unread ones
 
 
-@pytest.mark.parametrize("scan_k, fails", [(20, True), (50, False)])
+@pytest.mark.parametrize("scan_k, fails", [(20, True), (100, False)])
 def test_time_window_reports_damage_up_to_its_end_only(tmp_path, scan_k, fails):
-    """A damaged chunk inside the part read (before the window's end) fails as for the whole log;
-    one after the end is never read. The damage: a range of scan k (logged at (k + 1) / 10 s)
-    changed inside an uncompressed chunk, which only its CRC tells."""
+    """A damaged chunk inside the part read (up to WINDOW_LEAD_S after the window's end) fails as
+    for the whole log; one after that is never read. The damage: a range of scan k (logged at
+    (k + 1) / 10 s) changed inside an uncompressed chunk, which only its CRC tells."""
     import struct
 
-    path = _log(tmp_path, "mcap-ros2", _scans(60), chunk_size=600, compress=False)
+    path = _log(tmp_path, "mcap-ros2", _scans(120), chunk_size=600, compress=False)
     data = bytearray(path.read_bytes())
     at = data.index(struct.pack("<f", 1.0 + scan_k) * 2)
     data[at:at + 4] = struct.pack("<f", 99.0)

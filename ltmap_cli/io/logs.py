@@ -76,7 +76,7 @@ IMAGE = "sensor_msgs/msg/Image"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 ODOMETRY = "nav_msgs/msg/Odometry"
-WINDOW_LEAD_S = 5.0  # messages(start_ns=...): tf and odometry are read from this long before it
+WINDOW_LEAD_S = 5.0  # messages(start_ns=, end_ns=): tf and odometry are read from this long before to after
 
 Frame = ScanFrame | CloudFrame | DepthFrame | TfSample | OdometrySample
 
@@ -323,10 +323,10 @@ class LogSet:
         DepthFrame, TfSample (one per transform of a TFMessage) or OdometrySample.
 
         ``start_ns`` / ``end_ns`` (log times): only the sensor frames logged in [start_ns, end_ns];
-        tf and odometry from ``WINDOW_LEAD_S`` before start_ns (the first frames' poses), /tf_static
-        and CameraInfo from the log's start (the latest counts). The log is read up to start_ns
-        without decoding its sensor messages, and reading stops after end_ns (damage met up to
-        there is reported as for the whole log).
+        tf and odometry from ``WINDOW_LEAD_S`` before start_ns to as long after end_ns (the first
+        and last frames' poses), /tf_static and CameraInfo from the log's start (the latest
+        counts). The log is read up to start_ns without decoding its sensor messages, and reading
+        stops after that trail (damage met up to there is reported as for the whole log).
 
         ``fast``: CDR messages of the high-rate types are read directly (``decode.CDR_PARSERS``;
         the same frames, anything unusual falls back to the generic deserializer) and depth images
@@ -365,13 +365,16 @@ class LogSet:
             # and the CameraInfo and depth units messages last before it
             skip = SkipBefore(lead_ns, frozenset(static & set(kinds)),
                               frozenset(t for t, k in kinds.items() if k in ("info", "units")))  # fmt: skip
+        trail_ns = end_ns + int(WINDOW_LEAD_S * 1e9) if end_ns is not None else None
         stream = self._raw(kinds, skip)
         for topic, t, decode, where, log in stream:
-            if end_ns is not None and t > end_ns:  # past the window: stop reading
+            if trail_ns is not None and t > trail_ns:  # past the window and its tf: stop reading
                 stream.close()
                 self._finish()
                 return
             kind = kinds[topic]
+            if end_ns is not None and t > end_ns and kind not in ("tf", "odom"):
+                continue  # after the window: only the tf that places its last frames
             if start_ns is not None and t < start_ns and (
                     kind in ("depth", "scan", "cloud") or (kind in ("tf", "odom") and t < lead_ns
                                                            and topic not in static)):  # fmt: skip

@@ -377,13 +377,65 @@ class Ros2BagSource(Source):
         counts: dict[str, int] = {}
         n = 0
         try:
-            for conn, t, raw in self.reader.messages(connections=conns):
+            for conn, t, raw in self._rows(conns, skip, counts):
                 i = counts.get(conn.topic, 0)
                 counts[conn.topic] = i + 1
                 n += 1
                 yield RawMessage(t, conn.topic, i, _deser(self.types, raw, conn.msgtype, ros1=False))
         except Exception as err:  # noqa: BLE001 - damaged storage: stop here, report where
             self.stopped_at = _stop_text(self.path, n, None, err)
+
+    def _rows(self, conns: list, skip: SkipBefore | None, counts: dict[str, int]) -> Iterator[tuple[Any, int, bytes]]:
+        """(connection, time, bytes) of ``conns`` in time order. With ``skip``: from ``skip.ns``
+        on (a query from that time), plus every message of the ``keep_all`` topics and the last
+        one before it of each ``keep_last`` topic; ``counts`` then starts at the messages before
+        it per topic (counted in the database), so message indexes stay those of the bag. When
+        they cannot be counted, every message is read."""
+        import heapq
+
+        before = self._counts_before(skip.ns) if skip is not None else None
+        if before is None:
+            yield from self.reader.messages(connections=conns)
+            return
+        whole = [c for c in conns if c.topic in skip.keep_all]
+        rest = [c for c in conns if c.topic not in skip.keep_all]
+        last: dict[Any, tuple[Any, int, bytes]] = {}  # the keep_last topics' message last before skip.ns
+        lasting = [c for c in rest if c.topic in skip.keep_last]
+        if lasting:
+            for row in self.reader.messages(connections=lasting, stop=skip.ns):
+                last[(row[0].topic, row[0].id)] = row
+        for c in rest:
+            counts[c.topic] = before.get(c.topic, 0)
+        for row in last.values():  # the last one counts as read: its index is the one before
+            counts[row[0].topic] -= 1
+        streams = [iter(sorted(last.values(), key=lambda r: r[1]))]
+        if whole:
+            streams.append(self.reader.messages(connections=whole))
+        if rest:
+            streams.append(self.reader.messages(connections=rest, start=skip.ns))
+        yield from heapq.merge(*streams, key=lambda r: r[1])
+
+    def _counts_before(self, ns: int) -> dict[str, int] | None:
+        """Messages per topic logged before ``ns``, counted in the bag's sqlite3 files (rosbag2's
+        schema: ``messages(topic_id, timestamp)``, ``topics(id, name)``); None when they cannot be."""
+        import sqlite3
+
+        out: dict[str, int] = {}
+        dbs = sorted(self.path.glob("*.db3")) if self.path.is_dir() else [self.path]
+        try:
+            for db in dbs:
+                con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+                try:
+                    rows = con.execute("SELECT topics.name, COUNT(*) FROM messages JOIN topics ON "
+                                       "messages.topic_id = topics.id WHERE messages.timestamp < ? "
+                                       "GROUP BY topics.name", (int(ns),)).fetchall()  # fmt: skip
+                finally:
+                    con.close()
+                for name, k in rows:
+                    out[str(name)] = out.get(str(name), 0) + int(k)
+        except (sqlite3.Error, OSError, ValueError, OverflowError):
+            return None
+        return out if dbs else None
 
     def close(self) -> None:
         self.reader.close()
