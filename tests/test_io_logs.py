@@ -501,3 +501,14 @@ def test_time_window_reports_damage_up_to_its_end_only(tmp_path, scan_k, fails):
             assert logs.stats.stopped_at is None
     with open_logs(path) as logs, pytest.raises(TruncatedLogError):  # the whole log meets it either way
         list(logs.messages())
+
+
+def test_which_chunks_before_the_start_are_left_unread():
+    from ltmap_cli.io.skip import unread_chunks
+
+    # chunks before the skip time, in file order: (topics held, end time)
+    early = [({"/tf_static", "/info", "/scan"}, 1), ({"/scan", "/info"}, 2), ({"/scan"}, 3),
+             ({"/info", "/tf"}, 5), ({"/scan"}, 4)]
+    got = unread_chunks(early, lambda c: c[0], lambda c: c[1], frozenset({"/tf_static"}), frozenset({"/info"}))
+    assert got == {1, 2, 4}  # kept: 0 (/tf_static), 3 (the last holding /info, by end time)
+    assert unread_chunks(early, lambda c: c[0], lambda c: c[1], frozenset(), frozenset()) == {0, 1, 2, 3, 4}

@@ -63,7 +63,8 @@ from . import decode as dec
 from . import realsense
 from .bounded import DEFAULT_MAX_MESSAGE_MB
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
-from .sources import SkipBefore, Source, TopicInfo, normalize_type, open_source
+from .skip import SkipBefore
+from .sources import Source, TopicInfo, normalize_type, open_source
 
 __all__ = [
     "open_logs", "LogSet", "TopicInfo", "TopicSelection", "select_topics", "TruncatedLogError",

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from .bounded import DecompressError, TooLargeError, decompress, too_large
+from .skip import SkipBefore, unread_chunks
 
 MAGIC = b"#ROSBAG V2.0\n"
 MAX_HEADER = 1 << 20  # a record header is tens of bytes; a connection's definitions a few kB
@@ -442,24 +443,20 @@ class Ros1Bag:
 
     # ------------------------------------------------------------------ reading
 
-    def messages(self, wanted: set[int], damaged: list[str], skip_ns: int | None = None, keep_all: frozenset = frozenset(),
-                 keep_last: frozenset = frozenset()) -> Iterator[tuple[int, int, Any]]:
+    def messages(self, wanted: set[int], damaged: list[str], skip: SkipBefore | None = None
+                 ) -> Iterator[tuple[int, int, Any]]:  # fmt: skip
         """(time, connection, data) of the wanted connections' messages in time order (file
         order among equal times). A chunk that cannot be read is skipped and described in
-        ``damaged``. ``skip_ns``: the chunks whose messages all lie before it are not read, but
-        those holding a ``keep_all`` connection and the last one holding each ``keep_last``
-        connection; each gives (its start, -1, {connection: messages}) in its place instead."""
+        ``damaged``. ``skip`` (its keep sets by connection id): the chunks whose messages all lie
+        before ``skip.ns`` that ``io.skip.unread_chunks`` lets go are not read; each gives (its
+        start, -1, {connection: messages}) in its place instead."""
         chunks = sorted((c for c in self.layout.chunks if wanted.intersection(c.counts)),
                         key=lambda c: (c.start_ns, c.pos))
         unread: set[int] = set()
-        if skip_ns is not None:
-            early = [c for c in chunks if c.end_ns < skip_ns]
-            keep = {c.pos for c in early if keep_all.intersection(c.counts)}
-            for conn in keep_last:
-                holding = [c for c in early if conn in c.counts]
-                if holding:
-                    keep.add(max(holding, key=lambda c: (c.end_ns, c.pos)).pos)
-            unread = {c.pos for c in early if c.pos not in keep}
+        if skip is not None:
+            early = [c for c in chunks if c.end_ns < skip.ns]
+            unread = {early[k].pos for k in unread_chunks(early, lambda c: c.counts, lambda c: (c.end_ns, c.pos),
+                                                          skip.keep_all, skip.keep_last)}  # fmt: skip
         heap: list[tuple[int, int, int, Any]] = []
         seq = 0
         k = 0

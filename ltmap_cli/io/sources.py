@@ -30,6 +30,7 @@ from typing import Any, NamedTuple
 
 from ..errors import InputError, LogReadError, first_line, shown
 from .bounded import DEFAULT_MAX_MESSAGE_MB, TooLargeError, decompress
+from .skip import SkipBefore, unread_chunks
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
@@ -75,17 +76,6 @@ def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -
     else:
         reason = first_line(err)
     return f"{path}: reading stopped after {count} messages{where} ({reason})"
-
-
-@dataclass(frozen=True)
-class SkipBefore:
-    """What a reader may leave unread: messages logged before ``ns``, except every message of the
-    ``keep_all`` topics (/tf_static) and the last one before ``ns`` of the ``keep_last`` topics
-    (CameraInfo). A hint: a source that cannot seek reads them anyway (the caller filters)."""
-
-    ns: int
-    keep_all: frozenset = frozenset()
-    keep_last: frozenset = frozenset()
 
 
 class Source:
@@ -269,11 +259,11 @@ class Ros1Source(Source):
         by_topic: dict[str, set[int]] = {}
         for cid, (topic, _) in self.conns.items():
             by_topic.setdefault(topic, set()).add(cid)
-        extra = {} if skip is None else {
-            "skip_ns": skip.ns, "keep_all": frozenset(c for t in skip.keep_all for c in by_topic.get(t, ())),
-            "keep_last": frozenset(c for t in skip.keep_last for c in by_topic.get(t, ()))}  # fmt: skip
+        conn_skip = None if skip is None else SkipBefore(  # the same, by connection ids
+            skip.ns, frozenset(c for t in skip.keep_all for c in by_topic.get(t, ())),
+            frozenset(c for t in skip.keep_last for c in by_topic.get(t, ())))  # fmt: skip
         try:
-            for t, cid, body in self.bag.messages(wanted, damaged, **extra):
+            for t, cid, body in self.bag.messages(wanted, damaged, conn_skip):
                 if cid < 0:  # a chunk left unread: its messages per connection (the indexes stay those of the bag)
                     for c, k in body.items():
                         counts[self.conns[c][0]] = counts.get(self.conns[c][0], 0) + k
@@ -656,19 +646,12 @@ class McapSource(Source):
     def _unread(self, chunks: list, ids: set[int], channels: dict, skip: SkipBefore) -> dict[int, dict[str, int]]:
         """{chunk offset: {topic: messages}} of the chunks ``skip`` lets go unread."""
         early = [ci for ci in chunks if ci.message_end_time < skip.ns and ci.message_index_offsets]
-        keep = set()
-        for ci in early:
-            if any(channels[c].topic in skip.keep_all for c in ci.message_index_offsets if c in channels):
-                keep.add(ci.chunk_start_offset)
-        for topic in skip.keep_last:
-            holding = [ci for ci in early if any(c in channels and channels[c].topic == topic
-                                                 for c in ci.message_index_offsets)]  # fmt: skip
-            if holding:
-                keep.add(max(holding, key=lambda ci: (ci.message_end_time, ci.chunk_start_offset)).chunk_start_offset)
+        skipped = unread_chunks(early, lambda ci: (channels[c].topic for c in ci.message_index_offsets if c in channels),
+                                lambda ci: (ci.message_end_time, ci.chunk_start_offset), skip.keep_all,
+                                skip.keep_last)  # fmt: skip
         out = {}
-        for ci in early:
-            if ci.chunk_start_offset in keep:
-                continue
+        for k in sorted(skipped):
+            ci = early[k]
             counts = self._index_counts(ci, ids, channels)
             if counts is not None:  # (else it is read: its channels are not known for sure)
                 out[ci.chunk_start_offset] = counts
@@ -817,4 +800,4 @@ def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
                            f"nothing in it can be read") from None
 
 
-__all__ = ["TopicInfo", "RawMessage", "Source", "Thunk", "open_source", "normalize_type"]
+__all__ = ["TopicInfo", "RawMessage", "Source", "SkipBefore", "Thunk", "open_source", "normalize_type"]
