@@ -92,6 +92,14 @@ class LazyGroup(click.Group):
     def invoke(self, ctx: click.Context):
         try:
             return super().invoke(ctx)
+        except BrokenPipeError:  # the reader of stdout went away (`ltmap info LOG | head`): no error line;
+            # what is left for stdout goes nowhere (Python's advice for SIGPIPE), status 1
+            try:
+                devnull = os.open(os.devnull, os.O_WRONLY)
+                os.dup2(devnull, sys.stdout.fileno())
+            except (OSError, ValueError):  # (a stdout without a file descriptor: a test runner's)
+                pass
+            ctx.exit(1)
         except (LtmapError, OSError) as exc:
             if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
                 # the traceback, then the same line and the same exit status as without --debug

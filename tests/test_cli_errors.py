@@ -129,3 +129,22 @@ def test_the_program_ends_a_replay_at_once_with_its_summary_and_outputs_written(
     bad = subprocess.run([sys.executable, "-m", "ltmap_cli", "replay", str(tmp_path / "none.mcap"), "-o",
                           str(tmp_path / "o2")], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert bad.returncode == 2 and bad.stderr.startswith("ltmap: error: log not found")
+
+
+def test_a_reader_of_stdout_that_goes_away_is_not_an_error_line(tmp_path):
+    """`ltmap replay LOG | head -0`: the summary meets a closed pipe; no ``ltmap: error`` line (it
+    said to check the path and the free space), status 1, and the outputs are complete."""
+    import subprocess
+    import sys
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    out = tmp_path / "out"
+    p = subprocess.Popen([sys.executable, "-m", "ltmap_cli", "replay", str(log), "-o", str(out), "-q", "--no-plots",
+                          "--end", "3"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    p.stdout.close()  # before the summary is printed
+    err = p.stderr.read().decode()
+    assert p.wait(timeout=300) == 1, err
+    assert "error" not in err and "Traceback" not in err and "Exception ignored" not in err, err
+    from ltmap_cli.outputs.folder import OutputFolder
+
+    assert "report.json" in OutputFolder.completed(out, command="replay")["files"]
