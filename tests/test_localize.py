@@ -488,3 +488,22 @@ def test_a_log_without_laser_scans_says_it_cannot_localize_and_replays_as_record
     rep = json.loads((tmp_path / "out" / "report.json").read_text())
     assert rep["fixed_frame"] == "odom" and rep["frames_used"] == {"/cloud": 10}
     assert rep["localization"]["child_frame"] is None
+
+
+def test_localize_maps_and_tracks_only_the_window_of_start_and_end(tmp_path):
+    """``--localize --start``: the pre-pass reads the window as the replay does (a long log's
+    start is not tracked for nothing): localization.csv and the frames used hold its scans only."""
+    rng = np.random.default_rng(12)
+    poses = path(60, step=(0.04, -0.015, 0.012))  # 12 s at 5 Hz
+    msgs = [scan_msg(1_000_000_000 + k * 200_000_000, p, rng=rng) for k, p in enumerate(poses)]
+    log = write_log(tmp_path / "scans.bag", "ros1", msgs)
+    out = tmp_path / "out"
+    r = run(["replay", str(log), "--localize", "-o", str(out), "-q", "--no-plots", "--start", "4", "--end", "10",
+             "--set", f"replay.localization.initial_pose=[{poses[20][0]},{poses[20][1]},{poses[20][2]}]"])
+    assert r.exit_code == 0, r.output
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["frames_used"] == {"/scan": 31} and rep["window"] == {"start_s": 4.0, "end_s": 10.0}  # 5 Hz, 4..10 s
+    rows = list(csv.DictReader((out / "localization.csv").open()))
+    assert len(rows) == 31 and float(rows[0]["log_time_s"]) >= 4.0 and float(rows[-1]["log_time_s"]) <= 10.0
+    dist, deg = pose_error((float(rows[-1]["x"]), float(rows[-1]["y"]), float(rows[-1]["yaw"])), poses[50])
+    assert dist < 0.05 and deg < 1.0

@@ -317,6 +317,13 @@ class LogSet:
             raise TruncatedLogError(f"log is truncated or corrupt: {self.stats.stopped_at}; to use what could "
                                     f"be read, pass --allow-truncated")
 
+    def window_ns(self, start_s: float = 0.0, end_s: float = 0.0) -> tuple[int | None, int | None]:
+        """``messages``' start_ns / end_ns for the window ``start_s`` .. ``end_s`` s after the log's
+        first message (``replay.start_s`` / ``end_s``; 0: not bounded on that side)."""
+        t0 = self.start_ns or 0
+        return (t0 + int(round(start_s * 1e9)) if start_s > 0 else None,
+                t0 + int(round(end_s * 1e9)) if end_s > 0 else None)  # fmt: skip
+
     def messages(self, selection: TopicSelection | None = None, *, fast: bool = False,
                  depth_max_rate: float = 0.0, start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[tuple[str, int, Frame]]:

@@ -153,7 +153,8 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
         res.samples.append(TfSample(stamp, frame, state["child"], (x, y, z), q))
         res.log_times.append(log_ns)
 
-    for _topic, log_ns, item in logs.messages(sel, fast=True):
+    window = logs.window_ns(cfg.replay.start_s, cfg.replay.end_s)  # the replay's --start / --end
+    for _topic, log_ns, item in logs.messages(sel, fast=True, start_ns=window[0], end_ns=window[1]):
         if state["failed"]:
             break
         if isinstance(item, (TfSample, OdometrySample)):

@@ -261,9 +261,9 @@ class Replay:
                                        base_frame=cfg.map.robot.base_frame)  # fmt: skip
             self.caster = FrameCaster(run.lmap, cfg, fast=self.fast)
             self.executor = OrderedExecutor(self.threads)
+            win_start, win_end = logs.window_ns(cfg.replay.start_s, cfg.replay.end_s)  # None: not bounded
             stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate,
-                                   start_ns=start_ns if cfg.replay.start_s > 0 else None,
-                                   end_ns=end_ns if cfg.replay.end_s > 0 else None)  # fmt: skip
+                                   start_ns=win_start, end_ns=win_end)  # fmt: skip
             reader = open_reader(stream, timer.seconds, self.threads)
             try:
                 self._feed_localization(None)
@@ -300,8 +300,9 @@ class Replay:
         """The log times mapped: ``replay.start_s`` / ``end_s`` after the log's first message (the
         whole log by default); a start past the log's end is refused."""
         rc = self.cfg.replay
-        start_ns = logs.start_ns + int(round(rc.start_s * NS))
-        end_ns = min(logs.start_ns + int(round(rc.end_s * NS)), logs.end_ns) if rc.end_s > 0 else logs.end_ns
+        start_ns, end_ns = logs.window_ns(rc.start_s, rc.end_s)
+        start_ns = logs.start_ns if start_ns is None else start_ns
+        end_ns = logs.end_ns if end_ns is None else min(end_ns, logs.end_ns)
         if start_ns > logs.end_ns:
             raise InputError(f"--start {rc.start_s:g} s is past the end of {', '.join(str(p) for p in self.req.logs)} "
                              f"(it lasts {(logs.end_ns - logs.start_ns) / NS:.1f} s from its first message); give a "
