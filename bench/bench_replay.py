@@ -25,8 +25,10 @@ Configurations, all measured in this run:
   map is printed as IoU of LT and of P against ``exact``.
 
 - ``before`` (with ``--before REF``): the code of git ref REF (e.g. the commit before this
-  work), extracted with ``git archive`` under ``bench/.cache``, as it was; ``before-exact``: REF's
-  code in the exact configuration (for a REF that has the fast reader and the threads).
+  work), extracted with ``git archive`` under ``bench/.cache``, on the serial path (the code
+  before the pipeline rewrite had no other); ``before-exact``: REF's code in the exact
+  configuration, ``before-default``: in its default one (for a REF that has the fast reader and
+  the threads: compare it with ``projective``).
 
 Every configuration runs in a fresh process, first replaying the 50 s house sample once so that
 numba kernels are compiled or loaded from their cache before the timed run.
@@ -171,6 +173,7 @@ CONFIGS = {
     # name: (fast, threads, depth_max_rate, map.sensor.depth_integration)
     "before": (False, False, 0.0, None),  # the code of --before REF (git archive), as it was
     "before-exact": (True, True, 0.0, "exact"),  # REF's code in the exact configuration (REF has fast/threads)
+    "before-default": (True, True, 0.0, None),  # REF's code in its default configuration (threads, its integration)
     "serial": (False, False, 0.0, "exact"),
     "exact": (True, True, 0.0, "exact"),
     "exact-1thread": (True, False, 0.0, "exact"),
