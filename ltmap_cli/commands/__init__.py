@@ -51,3 +51,16 @@ class StatusLine:
             self.stream.write("\n")
             self.stream.flush()
             self._open = False
+
+
+def sensor_options(cfg, fixed_frame=None, tf_mounts=(), scan_topics=(), cloud_topics=(), depth_topics=()) -> None:
+    """Replay's options that choose sensors and frames, applied to ``cfg`` (after its --config
+    file, before --set: replay's order), for replay and for info (which says what replay would use)."""
+    rc = cfg.replay
+    if fixed_frame is not None:
+        rc.fixed_frame = fixed_frame
+    if tf_mounts:
+        rc.tf = [*rc.tf, *tf_mounts]
+    for key, value in (("scan_topics", scan_topics), ("cloud_topics", cloud_topics), ("depth_topics", depth_topics)):
+        if value:
+            setattr(rc, key, list(value))

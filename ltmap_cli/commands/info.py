@@ -23,6 +23,7 @@ from ..errors import LogReadError, TransformError
 from ..io import decode as dec
 from ..io.logs import IMAGE, TruncatedLogError, open_logs
 from ..io.transforms import TfBuffer, choose_base_frame
+from . import sensor_options
 
 NS = 1_000_000_000
 OFFSET_SHOWN_S = 1.0  # header stamps this far from record time (either way) are shown
@@ -356,12 +357,7 @@ def info(
     `ltmap replay` would use, the fixed and base frames it would use, and warnings for what it
     would skip and why. With replay's --config / --set, what replay would use with them."""
     cfg = load_config(config_file)  # in replay's order: the file, the options, then --set
-    rc = cfg.replay
-    rc.fixed_frame = fixed_frame or rc.fixed_frame
-    rc.tf = [*rc.tf, *tf_mounts]
-    for key, value in (("scan_topics", scan_topics), ("cloud_topics", cloud_topics), ("depth_topics", depth_topics)):
-        if value:
-            setattr(rc, key, list(value))
+    sensor_options(cfg, fixed_frame or None, tf_mounts, scan_topics, cloud_topics, depth_topics)
     for key, value in parse_set(overrides):
         set_dotted(cfg, key, value)
     cfg.validate()

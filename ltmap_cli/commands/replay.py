@@ -12,7 +12,7 @@ from ..config import load_config, parse_set, set_dotted
 from ..errors import ConfigError
 from ..outputs.folder import OutputFolder, check_completed_input, listing
 from ..pipeline.replay import Replay, ReplayRequest
-from . import StatusLine, nonempty_output
+from . import StatusLine, nonempty_output, sensor_options
 
 ETA_AFTER_S = 2.0  # the time left is shown after this much wall time (or 5 % of the log): no wild first guess
 
@@ -131,7 +131,6 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
         "map.layers.tick": tick,
         "replay.snapshot_every": snapshot_every,
         "replay.mode": mode,
-        "replay.fixed_frame": fixed_frame,
         "replay.robot_radius": robot_radius,
         "replay.map_period": map_period,
         "replay.mcap_out": True if mcap_out else None,
@@ -143,11 +142,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     for key, value in flags.items():
         if value is not None:
             set_dotted(cfg, key, value)
-    if tf_mounts:
-        cfg.replay.tf = list(cfg.replay.tf) + list(tf_mounts)
-    for key, value in (("scan_topics", scan_topic), ("cloud_topics", cloud_topic), ("depth_topics", depth_topic)):
-        if value:
-            setattr(cfg.replay, key, list(value))
+    sensor_options(cfg, fixed_frame, tf_mounts, scan_topic, cloud_topic, depth_topic)
     if allow_truncated:
         cfg.replay.allow_truncated = True
     for key, value in parse_set(overrides):
