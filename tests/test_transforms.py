@@ -223,3 +223,12 @@ def test_a_cycle_in_recorded_tf_ends_a_frames_chain():
     tf.add_mount("a:laser=0,0,0.3,0,0,0")
     assert tf.chain("laser") == ("laser", "a", "b")
     assert tf.root("/laser") == "b"
+
+
+def test_no_fixed_frame_reason_without_any_sensor_frame():
+    """A log cut before its first sensor message (found by the reader fuzz): tf has a tree but no
+    sensor frame is known; the line names tf's root, and does not fail."""
+    from ltmap_cli.io.transforms import no_fixed_frame_reason
+
+    text = no_fixed_frame_reason({"base_link", "laser"}, [], {}, ["base_link"])
+    assert "--fixed-frame base_link (the root of tf" in text and "--tf odom:base_link=" in text

@@ -432,7 +432,9 @@ def no_fixed_frame_reason(names: set[str], sensors: list[str], roots: dict[str, 
                     f"; then give the sensor's mount with --tf)")
     if not ways:
         return f"{have}; choose the fixed frame with --fixed-frame <frame>"
-    mount = f"--tf odom:{placed[0] if placed else roots.get(sensors[0], sensors[0])}=x,y,z,roll,pitch,yaw"
+    # (no sensor frame known: a log cut before its first sensor message; then the root of tf)
+    top = placed[0] if placed else roots.get(sensors[0], sensors[0]) if sensors else trees[0]
+    mount = f"--tf odom:{top}=x,y,z,roll,pitch,yaw"
     return f"{have}: choose the fixed frame with {' or '.join(ways)}, or give the transform from a fixed frame with {mount}"
 
 
