@@ -1,5 +1,6 @@
-"""Seeded byte mutations of a ROS 1 bag, an MCAP and a ROS 2 db3 through ``ltmap info`` and
-``ltmap replay --allow-truncated`` (issue 15): the exit status is 0 or 2, never an exception
+"""Seeded byte mutations of a ROS 1 bag, an MCAP and a ROS 2 db3 through ``ltmap info``,
+``ltmap replay --allow-truncated`` (issue 15) and the same with a window (``--start`` /
+``--end``: the readers' seeking): the exit status is 0 or 2, never an exception
 escaping the CLI (a traceback), whatever the damage. Run in this process through click's
 runner (600 subprocesses would take minutes); each run is bounded by an alarm.
 
@@ -29,11 +30,13 @@ SEED = 1234
 def originals(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("fuzz_originals")
     msgs = room_messages(0.0, 3.0, pillar=True)
+    long_msgs = room_messages(0.0, 9.0, pillar=True)  # for a window past the tf lead: chunks before it go unread
     out = {}
     for fmt in FORMATS:
-        kw = {"chunk_size": 4096} if fmt == "mcap-ros2" else {}
-        out[fmt] = write_log(d / {"ros1": "log.bag", "mcap-ros2": "log.mcap", "ros2-sqlite3": "bag"}[fmt], fmt,
-                             msgs, **kw)
+        kw = {"chunk_size": 4096} if fmt == "mcap-ros2" else {"ros1_chunk_size": 4096} if fmt == "ros1" else {}
+        name = {"ros1": "log.bag", "mcap-ros2": "log.mcap", "ros2-sqlite3": "bag"}[fmt]
+        out[fmt] = write_log(d / name, fmt, msgs, **kw)
+        out[fmt + "-long"] = write_log(d / ("long_" + name), fmt, long_msgs, **kw)
     return out
 
 
@@ -99,21 +102,27 @@ def _check(res, what: str) -> None:
         assert len(errors) == 1 and len(errors[0]) < 2000, f"{what}: {res.output[-1500:]}"
 
 
-def fuzz(fmt: str, original: Path, work: Path, count: int) -> dict[int, int]:
+def _mutated_copy(original: Path, case: Path, rng: random.Random) -> tuple[Path, str]:
+    if original.is_dir():
+        shutil.copytree(original, case / original.name)
+    else:
+        shutil.copy(original, case / original.name)
+    path = case / original.name
+    target = _target(path)
+    data, how = mutate(target.read_bytes(), rng)
+    target.write_bytes(data)
+    return path, how
+
+
+def fuzz(fmt: str, original: Path, work: Path, count: int, long_original: Path | None = None) -> dict[int, int]:
     rng = random.Random(f"{SEED}-{fmt}")
+    rng_long = random.Random(f"{SEED}-{fmt}-long")
     runner = CliRunner()
     statuses: dict[int, int] = {}
     for k in range(count):
         case = work / f"case{k}"
         case.mkdir()
-        if original.is_dir():
-            shutil.copytree(original, case / original.name)
-        else:
-            shutil.copy(original, case / original.name)
-        path = case / original.name
-        target = _target(path)
-        data, how = mutate(target.read_bytes(), rng)
-        target.write_bytes(data)
+        path, how = _mutated_copy(original, case, rng)
         what = f"{fmt} mutation {k} (seed {SEED}: {how})"
         with _alarm(60, what):
             res = runner.invoke(cli, ["info", str(path)])
@@ -124,20 +133,29 @@ def fuzz(fmt: str, original: Path, work: Path, count: int) -> dict[int, int]:
                                       "-o", str(case / "out")])
         _check(res, f"replay --allow-truncated, {what}")
         statuses[100 + res.exit_code] = statuses.get(100 + res.exit_code, 0) + 1
+        if long_original is not None:  # a window past the tf lead: the readers skip what lies before it
+            (case / "long").mkdir()
+            lpath, lhow = _mutated_copy(long_original, case / "long", rng_long)
+            lwhat = f"{fmt} long mutation {k} (seed {SEED}-long: {lhow})"
+            with _alarm(120, lwhat):
+                res = runner.invoke(cli, ["replay", str(lpath), "--allow-truncated", "-q", "--no-plots", "--start",
+                                          "7", "--end", "8", "-o", str(case / "out_window")])  # fmt: skip
+            _check(res, f"replay --allow-truncated --start 7 --end 8, {lwhat}")
+            statuses[200 + res.exit_code] = statuses.get(200 + res.exit_code, 0) + 1
         shutil.rmtree(case)
     return statuses
 
 
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_fuzz_30_mutations(fmt, originals, tmp_path):
-    statuses = fuzz(fmt, originals[fmt], tmp_path, 30)
+    statuses = fuzz(fmt, originals[fmt], tmp_path, 30, originals[fmt + "-long"])
     assert sum(v for k, v in statuses.items() if k < 100) == 30
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("fmt", FORMATS)
 def test_fuzz_200_mutations(fmt, originals, tmp_path):
-    statuses = fuzz(fmt, originals[fmt], tmp_path, 200)
+    statuses = fuzz(fmt, originals[fmt], tmp_path, 200, originals[fmt + "-long"])
     assert sum(v for k, v in statuses.items() if k < 100) == 200
     # the mutations do damage: some runs are refused, and some still replay
     assert statuses.get(2, 0) + statuses.get(102, 0) > 0 and statuses.get(100, 0) > 0, statuses
