@@ -149,6 +149,65 @@ def test_several_logs_merge_in_time_order(tmp_path):
                    ("/scan", 4 * S, 1.0), ("/tf", 5 * S, None), ("/scan", 6 * S, 1.0), ("/scan", 7 * S, 2.0)]
 
 
+def test_a_recording_split_into_many_files_is_read_a_file_or_two_at_a_time(tmp_path, monkeypatch):
+    """rosbag2 --max-bag-duration / rosbag record --split: the files follow each other in time.
+    The merge starts a file's stream when it reaches the file's first message, so at most the
+    file being read and the next are open in the stream (before: every file's first chunk at
+    once), and the order is still that of the whole log (by log time, then by file given)."""
+    from ltmap_cli.io import logs as logs_mod
+
+    fmts = ["ros1", "mcap-ros2", "ros2-sqlite3"]
+    paths = []
+    for i in range(9):  # 1 s a file, 4 scans and 2 tf each; the last one overlaps its predecessor
+        t0 = i * S if i < 8 else 7 * S + S // 8
+        msgs = [scan("/scan", t0 + j * S // 4, [float(i)]) for j in range(4)]
+        msgs += [tf(t0 + j * S // 2, [("odom", "base_link")]) for j in range(2)]
+        paths.append(_log(tmp_path, fmts[i % 3], sorted(msgs, key=lambda m: m.log_time_ns), name=f"part_{i}"))
+    live, most = set(), [0]
+    tagged = logs_mod.LogSet._tagged
+
+    def counting(src, wanted, k, skip=None):
+        live.add(k)
+        most[0] = max(most[0], len(live))
+        try:
+            yield from tagged(src, wanted, k, skip)
+        finally:
+            live.discard(k)
+
+    monkeypatch.setattr(logs_mod.LogSet, "_tagged", staticmethod(counting))
+    with open_logs(paths[::-1]) as logs:  # given in any order
+        got = [(lt, fr.ranges[0] if isinstance(fr, ScanFrame) else None) for _, lt, fr in logs.messages()]
+    assert most[0] == 2  # the overlapping pair; never all nine
+    want = sorted([(i * S + j * S // 4, float(i)) for i in range(8) for j in range(4)]
+                  + [(7 * S + S // 8 + j * S // 4, 8.0) for j in range(4)]
+                  + [(i * S + j * S // 2, None) for i in range(8) for j in range(2)]
+                  + [(7 * S + S // 8 + j * S // 2, None) for j in range(2)],
+                  key=lambda x: x[0])
+    assert [t for t, _ in got] == [t for t, _ in want]
+    assert [r for _, r in got if r is not None] == [r for _, r in want if r is not None]
+
+
+def test_merge_order_and_lazy_starts_by_hand():
+    from ltmap_cli.io.logs import _merge
+
+    started = []
+
+    def stream(k, times):
+        started.append(k)
+        for t in times:
+            yield (t, k)
+
+    # stream 1 says it starts at 5 but holds 3 (a wrong summary): it is only late, nothing is lost
+    streams = [stream(0, [1, 4, 9]), stream(1, [3, 6]), stream(2, [2, 4]), stream(3, [10])]
+    out = []
+    for item in _merge(streams, [0, 5, None, 9]):
+        out.append(item)
+        if item == (4, 2):
+            assert started == [2, 0]  # 1 and 3 not started yet
+    assert started == [2, 0, 1, 3]
+    assert out == [(1, 0), (2, 2), (4, 0), (4, 2), (3, 1), (6, 1), (9, 0), (10, 3)]
+
+
 def test_ros2_bag_paths_inside_the_folder_and_custom_types(tmp_path):
     bag = _log(tmp_path, "ros2-sqlite3", [scan("/scan", S, [1.0])])
     for p in (bag, bag / "metadata.yaml", next(bag.glob("*.db3"))):

@@ -2,8 +2,9 @@
 
 Formats: ROS 1 ``.bag`` (v2.0), ROS 2 bag folders (sqlite3 or mcap storage; the folder, its
 ``metadata.yaml`` or its ``.db3`` may be given), standalone ``.mcap`` (ros2 profile with CDR, or
-ros1 messages). Several logs are merged into one stream by log time (a heap merge); nothing is
-loaded whole: memory does not grow with log size.
+ros1 messages). Several logs are merged into one stream by log time (a heap merge that opens a
+log's stream when the merge reaches its first message: a recording split into many files is read
+a file or two at a time); nothing is loaded whole: memory does not grow with log size.
 
 API::
 
@@ -273,12 +274,13 @@ class LogSet:
         the sources may leave unread (``sources.SkipBefore``)."""
         wanted = set(topics)
         streams = [self._tagged(src, wanted, k, skip) for k, src in enumerate(self.sources)]
+        starts = [src.start_ns for src in self.sources]
         last: dict[str, tuple[int, int]] = {}  # topic -> (log time, source) of its last message
         twice: Counter[tuple[str, int, int]] = Counter()  # (topic, source a, source b) -> messages
         several = len(streams) > 1  # one log cannot repeat another
         n = self.stats.messages_per_topic
         try:
-            for t, topic, decode, where, k in heapq.merge(*streams, key=lambda x: x[0]):
+            for t, topic, decode, where, k in _merge(streams, starts):
                 n[topic] = n.get(topic, 0) + 1
                 if several:
                     prev = last.get(topic)
@@ -494,6 +496,40 @@ class LogSet:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _merge(streams: list[Iterator[tuple]], starts: list[int | None]) -> Iterator[tuple]:
+    """The items of ``streams`` (each in order of its item[0], a log time) in order of (log time,
+    stream): ``heapq.merge``'s order, but a stream is started (its file read) only when the
+    merge reaches ``starts[k]``, its log's first log time (None: at once), and dropped when done.
+    A recording split into hundreds of files (rosbag2 ``--max-bag-duration``, ``rosbag record
+    --split``) then holds one or two of them open at a time, not a decompressed chunk of each.
+    A start later than the stream's first item (a wrong summary) only delays that stream."""
+    order = sorted((s, k) for k, s in enumerate(starts) if s is not None)
+    heap: list[tuple] = []
+    nxt = 0  # order[nxt:]: streams not started yet
+
+    def start(k: int) -> None:
+        item = next(streams[k], None)
+        if item is not None:
+            heapq.heappush(heap, (item[0], k, item))  # (k is unique: items are never compared)
+
+    for k, s in enumerate(starts):
+        if s is None:
+            start(k)
+    while heap or nxt < len(order):
+        while nxt < len(order) and (not heap or order[nxt][0] <= heap[0][0]):
+            start(order[nxt][1])
+            nxt += 1
+        if not heap:
+            continue
+        t, k, item = heap[0]
+        yield item
+        following = next(streams[k], None)
+        if following is None:
+            heapq.heappop(heap)
+        else:
+            heapq.heapreplace(heap, (following[0], k, following))
 
 
 def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False,
