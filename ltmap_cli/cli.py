@@ -76,9 +76,14 @@ class LazyGroup(click.Group):
             except click.ClickException as exc:
                 click.echo(f"ltmap: error: {' '.join(exc.format_message().split())}", err=True)
                 code = exc.exit_code
-            except click.Abort:
-                click.echo("Aborted!", err=True)
-                code = 1
+            except click.Abort as exc:
+                if isinstance(exc.__context__, KeyboardInterrupt):  # Ctrl-C (replay: the second one)
+                    click.echo("ltmap: interrupted; nothing was written (an output folder keeps what it held)",
+                               err=True)  # fmt: skip
+                    code = 130
+                else:
+                    click.echo("Aborted!", err=True)
+                    code = 1
         if standalone_mode:
             sys.exit(code)
         return code

@@ -37,6 +37,13 @@ class LtmapError(Exception):
     exit_code = 2
 
 
+class RunInterrupted(LtmapError):
+    """The user stopped the run (Ctrl-C) before it had anything to write (exit status 130, the
+    shell's for SIGINT)."""
+
+    exit_code = 130
+
+
 class ConfigError(LtmapError):
     """A parameter or configuration file is invalid."""
 

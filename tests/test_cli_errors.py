@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from pathlib import Path
 
 import pytest
@@ -148,3 +149,63 @@ def test_a_reader_of_stdout_that_goes_away_is_not_an_error_line(tmp_path):
     from ltmap_cli.outputs.folder import OutputFolder
 
     assert "report.json" in OutputFolder.completed(out, command="replay")["files"]
+
+
+def _replay_until(tmp_path, out, fraction, *extra):
+    """An ``ltmap replay`` subprocess (SIGINT as in a terminal, not ignored as for a background
+    job), returned once its progress bar (on a pipe: a line per 10 %) shows ``fraction`` of the log."""
+    import signal
+    import subprocess
+    import sys
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    p = subprocess.Popen([sys.executable, "-m", "ltmap_cli", "replay", str(log), "-o", str(out), *extra],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
+    lines = []
+    for line in p.stderr:
+        lines.append(line)
+        m = re.match(r"^\[[#.]+\] +(\d+\.\d)/(\d+\.\d) s log", line)
+        if m and float(m.group(1)) >= fraction * float(m.group(2)):
+            return p, lines
+    raise AssertionError("".join(lines))
+
+
+def test_ctrl_c_maps_what_was_read_and_a_second_one_writes_nothing(tmp_path):
+    """Ctrl-C once: the replay stops reading, writes the outputs of the log read so far (a complete
+    folder: report.json says where it stopped) and says how to go on; status 130. Twice: it stops
+    at once and the output folder keeps what it held (here the first run's folder); status 130."""
+    import signal
+
+    from ltmap_cli.outputs.folder import OutputFolder
+
+    out = tmp_path / "out"
+    p, lines = _replay_until(tmp_path, out, 0.3, "--no-plots")
+    p.send_signal(signal.SIGINT)
+    stdout, rest = p.communicate(timeout=300)
+    err = "".join(lines) + rest
+    assert p.returncode == 130, err
+    rep = json.loads((out / "report.json").read_text())
+    stop = rep["interrupted_at_s"]
+    assert 0.3 * 30 <= stop < 30 and rep["log_duration_s"] == stop, rep["log_duration_s"]
+    assert "report.json" in OutputFolder.completed(out, command="replay")["files"]
+    assert stdout.startswith(f"replayed {stop:.1f} s of log") and "wrote " in stdout, stdout
+    assert f"ltmap: interrupted at {stop:.1f} s of log time" in err and f"--start {stop:g} --resume {out}" in err, err
+    assert "Traceback" not in err and "error" not in err, err
+    first = (out / "report.json").read_bytes()
+
+    p, lines = _replay_until(tmp_path, out, 0.3)  # plots on: the outputs take long enough for the second
+    p.send_signal(signal.SIGINT)
+    for line in p.stderr:
+        lines.append(line)
+        if line.startswith("ltmap: interrupted: mapping the frames read so far"):
+            break
+    p.send_signal(signal.SIGINT)
+    stdout, rest = p.communicate(timeout=300)
+    err = "".join(lines) + rest
+    assert p.returncode == 130 and stdout == "", err
+    assert err.rstrip().splitlines()[-1] == "ltmap: interrupted; nothing was written (an output folder keeps what it held)"
+    assert "Traceback" not in err, err
+    assert (out / "report.json").read_bytes() == first
+    OutputFolder.completed(out, command="replay")
+    assert [q.name for q in tmp_path.iterdir()] == ["out"]  # no staging folder left behind

@@ -543,3 +543,40 @@ def test_replay_of_a_time_window(tmp_path):
         assert bad.exit_code == 2 and len(bad.stderr.strip().splitlines()) == 1, bad.output
         assert all(w in bad.stderr for w in words), bad.stderr
         assert not (tmp_path / "bad" / "report.json").exists()
+
+
+def test_an_interrupted_replay_writes_the_map_of_the_log_read_so_far(tmp_path):
+    """``Replay.interrupt`` (the CLI's first Ctrl-C): reading stops, the frames taken are mapped
+    (those waiting for their pose get the tf logged up to ``tf_wait`` later, nothing skipped),
+    the last tick ends and the outputs are written as for the log ending there: the same frames
+    and the same arrays as ``--end`` at that time; report.json says where it stopped."""
+    from ltmap_cli.config import Config
+    from ltmap_cli.io.state import read_state
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    s = 1_000_000_000
+
+    class StopAt12(Replay):  # interrupted once 12 s of log were read, as a signal handler would
+        def _report_progress(self, log_ns, force=False, phase=None):
+            if log_ns is not None and log_ns - self.state.log_start_ns >= 12 * s:
+                self.interrupt()
+            super()._report_progress(log_ns, force, phase)
+
+    cfg = Config()
+    cfg.replay.plots = False
+    (tmp_path / "a").mkdir()
+    rep = StopAt12(cfg, ReplayRequest([log], tmp_path / "a")).run()
+    stop = rep["interrupted_at_s"]
+    assert 12.0 <= stop < 12.1 and rep["log_duration_s"] == stop and not rep["frames_skipped"], rep
+    cfg2 = Config()
+    cfg2.replay.plots = False
+    cfg2.replay.end_s = stop + 0.0005  # (the report rounds to the ms)
+    (tmp_path / "b").mkdir()
+    ref = Replay(cfg2, ReplayRequest([log], tmp_path / "b")).run()
+    assert rep["frames_used"] == ref["frames_used"] and rep["ticks"] == ref["ticks"]
+    assert ref["interrupted_at_s"] is None
+    a, _ = read_state(tmp_path / "a" / "snapshots" / "state_final.npz")
+    b, _ = read_state(tmp_path / "b" / "snapshots" / "state_final.npz")
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a), [k for k in a if not np.array_equal(a[k], b[k])]
+    assert (tmp_path / "a" / "map.pgm").read_bytes() == (tmp_path / "b" / "map.pgm").read_bytes()

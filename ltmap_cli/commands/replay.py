@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import signal
+import threading
+from contextlib import contextmanager
 from pathlib import Path
 
 import click
@@ -60,6 +63,30 @@ class ProgressBar(StatusLine):
         if new:
             self._last_decile = decile
         self.show(line, new)
+
+
+@contextmanager
+def first_ctrl_c_stops(run: Replay, say, output: Path):
+    """While in it, a first Ctrl-C (SIGINT) stops reading the log: the frames read so far are
+    mapped and the outputs written as for a log that ended there (``Replay.interrupt``); a second
+    one stops at once (KeyboardInterrupt: nothing written, the output folder keeps what it held).
+    Not in a thread other than the main one, nor when SIGINT is ignored (a background job)."""
+    old = signal.getsignal(signal.SIGINT) if threading.current_thread() is threading.main_thread() else None
+    if old is None or old is signal.SIG_IGN:
+        yield
+        return
+
+    def stop(signum, frame):
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # the second Ctrl-C
+        run.interrupt()
+        say(f"ltmap: interrupted: mapping the frames read so far and writing {output}/ (Ctrl-C again to stop "
+            f"at once; {output}/ then keeps what it held)")
+
+    signal.signal(signal.SIGINT, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def _xy(text: str, flag: str) -> list[float]:
@@ -162,8 +189,10 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
         out.refuse_inputs_inside(logs, "LOG")
         out.refuse_inputs_inside([static], "--static")
         request = ReplayRequest(list(logs), out.staging, static=static, resume=resume, final_dir=out.final)
+        run = Replay(cfg, request, progress=bar)
         try:
-            report = Replay(cfg, request, progress=bar).run()
+            with first_ctrl_c_stops(run, bar.note if bar is not None else lambda t: click.echo(t, err=True), output):
+                report = run.run()
         finally:
             if bar is not None:
                 bar.close()
@@ -192,4 +221,10 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     if report.get("stopped_at"):
         click.echo(f"  log damaged or cut off: {report['stopped_at']}")
     click.echo(f"wrote {output}/: {listing(manifest)}")
+    stopped = report.get("interrupted_at_s")
+    if stopped is not None:
+        click.echo(f"ltmap: interrupted at {stopped:.1f} s of log time (from its first message): {output}/ holds the "
+                   f"map up to there; to map the rest, add --start {stopped:g} --resume {output} -o <another folder>",
+                   err=True)  # fmt: skip
+        click.get_current_context().exit(130)
 

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import resource
+import threading
 import time
 import warnings
 from collections import Counter
@@ -25,9 +26,10 @@ import numpy as np
 
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
-from ..errors import InputError, LtmapWarning, MapFileError, TransformError
+from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
+from ..io.frames import OdometrySample, TfSample
 from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
@@ -173,6 +175,13 @@ class Replay:
         self.log_total_s = 0.0
         self._window_start_ns = 0  # the first log time mapped (the log's first message, or replay.start_s after it)
         self._warm = False
+        self._stop = threading.Event()
+
+    def interrupt(self) -> None:
+        """Stop reading the log (from any thread; a signal handler's call): the frames read so
+        far are mapped, the last tick ends, and the outputs are written as for a log that ended
+        there; report.json's ``interrupted_at_s`` says where."""
+        self._stop.set()
 
     def run(self) -> dict:
         self._t_wall0 = time.perf_counter()
@@ -265,9 +274,18 @@ class Replay:
             stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate,
                                    start_ns=win_start, end_ns=win_end)  # fmt: skip
             reader = open_reader(stream, timer.seconds, self.threads)
+            stopped_ns = None  # interrupt(): the log time of the last sensor frame taken
+            last_ns = start_ns
             try:
                 self._feed_localization(None)
                 for topic, log_ns, item in reader:
+                    if self._stop.is_set():  # interrupted: only the poses of the frames taken, for tf_wait
+                        stopped_ns = last_ns if stopped_ns is None else stopped_ns
+                        if log_ns > stopped_ns + self.scheduler.hold.wait_ns:
+                            break
+                        if not isinstance(item, (TfSample, OdometrySample)):
+                            continue
+                    last_ns = log_ns
                     self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
@@ -277,7 +295,10 @@ class Replay:
                     self._dispatch(event)
                 for job in self.executor.drain():
                     self._integrate(*job)
-                if logs.stats.stopped_at is None:  # the whole log was read: the bar ends at 100 %
+                if stopped_ns is not None:  # the log "ends" where it was interrupted
+                    end_ns = max(min(stopped_ns, end_ns), start_ns)
+                    self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
+                elif logs.stats.stopped_at is None:  # the whole log was read: the bar ends at 100 %
                     self._report_progress(end_ns, force=True)
             finally:
                 reader.close()
@@ -292,6 +313,7 @@ class Replay:
                 "stopped_at": stats.stopped_at,
                 "window": None if not (cfg.replay.start_s or cfg.replay.end_s) else {
                     "start_s": round((start_ns - logs.start_ns) / NS, 3), "end_s": round((end_ns - logs.start_ns) / NS, 3)},
+                "interrupted_at_s": None if stopped_ns is None else round((end_ns - logs.start_ns) / NS, 3),
             }
         self._check_used(sel, inputs["messages_not_decoded"])
         return self._finish(run, inputs, static_info, resume_info)
@@ -314,6 +336,9 @@ class Replay:
         """A run in which no frame was integrated fails, naming why (SPEC 4)."""
         if sum(self.counts.used.values()):
             return
+        if self._stop.is_set():
+            raise RunInterrupted(f"interrupted before any sensor frame of {', '.join(str(p) for p in self.req.logs)} "
+                                 f"was mapped; nothing was written")  # fmt: skip
         if self.scheduler.fixed_later is not None:  # --fixed-frame named a frame the whole log lacks
             self.scheduler.tf.fixed_frame(*self.scheduler.fixed_later)  # raises info's line for it
         logs = ", ".join(str(p) for p in self.req.logs)
