@@ -189,7 +189,19 @@ def gather(
             if kind == "depth":
                 used[topic] += f" (CameraInfo {sel.depths[topic]})"
                 enc = str(getattr(msg, "encoding", ""))
-                if enc not in ("16UC1", "32FC1", "mono16"):
+                if hasattr(msg, "format"):  # a CompressedImage: the check replay makes on every image
+                    from ..io import compressed_depth
+
+                    try:
+                        compressed_depth.decode(msg.data, msg.format, None, sensor_where[topic])
+                    except LogReadError as err:
+                        warnings.append(f"{topic}: replay would stop on its first message: {err}")
+                    except compressed_depth.DamagedPayload as err:
+                        warnings.append(f"{topic}: its first message cannot be decoded ({err}): replay skips "
+                                        f"such messages and counts them")  # fmt: skip
+                    else:
+                        used[topic] += f", {str(msg.format).strip()}"
+                elif enc not in ("16UC1", "32FC1", "mono16"):
                     warnings.append(
                         f"{topic}: encoding {enc!r} is not a depth encoding (16UC1, 32FC1); replay "
                         f"would stop on it: leave it out with --depth-topic naming others"

@@ -405,6 +405,27 @@ def depth_raw(msg: Any, where: str) -> np.ndarray:
     return raw if dt.isnative else raw.astype(dt.newbyteorder("="))
 
 
+def intrinsics_size(info: Any) -> tuple[int, int] | None:
+    """(width, height) a CameraInfo gives, None when it gives none (0 x 0)."""
+    w, h = int(info.width), int(info.height)
+    return (w, h) if (w, h) != (0, 0) else None
+
+
+def depth_frame(header: Any, raw: np.ndarray, info: Any, topic: str, where: str, units: float | None,
+                fast: bool) -> RawDepthFrame | DepthFrame:
+    """The frame of decoded depth pixels (uint16 in ``units`` m, default mm, 0 invalid; or
+    float32 m, NaN invalid): a ``RawDepthFrame`` (``fast``) or a ``DepthFrame``."""
+    if units is not None and units != MM and raw.dtype == np.uint16:
+        raw = raw.astype(np.float32) * np.float32(units)  # (0 stays 0: invalid, as decode_depth_raw has it)
+    intr = _checked_intrinsics(info, raw.shape, where)
+    frame = RawDepthFrame(stamp_ns=stamp_ns(header.stamp), frame_id=frame_name(header.frame_id), raw=raw,
+                          intrinsics=intr, topic=topic)
+    if fast:
+        return frame
+    return DepthFrame(stamp_ns=frame.stamp_ns, frame_id=frame.frame_id, depth_m=frame.depth_m, intrinsics=intr,
+                      topic=topic)
+
+
 def decode_depth_raw(msg: Any, info: Any, topic: str, where: str, units: float | None = None) -> RawDepthFrame:
     """As ``decode_depth``, keeping the raw pixels (a ``RawDepthFrame``); 16-bit pixels in
     ``units`` other than millimetres become float32 metres."""

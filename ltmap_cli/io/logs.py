@@ -21,7 +21,10 @@ API::
         logs.stats             # ReadStats: messages read per topic; stopped_at for a cut-off log
         logs.skipped           # {reason: count} of messages read but not turned into frames
 
-Topic selection (``select_topics``): LaserScan -> scans, PointCloud2 -> clouds, Image -> depth.
+Topic selection (``select_topics``): LaserScan -> scans, PointCloud2 -> clouds, Image and
+CompressedImage (image_transport's ``<image>/compressedDepth`` and ``<image>/compressed``:
+``compressed_depth``) -> depth; of the same images on several transports, the raw Image is used,
+else compressedDepth, else compressed.
 With no names, every topic of those types is used, except Image topics whose name does not
 contain ``depth`` (a colour camera) and depth topics without a CameraInfo. Naming any topic
 (``scan_topics``, ``cloud_topics`` or ``depth_topics``) makes the choice exclusive: only the
@@ -69,12 +72,15 @@ from .sources import Source, TopicInfo, normalize_type, open_source
 
 __all__ = [
     "open_logs", "LogSet", "TopicInfo", "TopicSelection", "select_topics", "TruncatedLogError",
-    "normalize_type", "SCAN", "CLOUD", "IMAGE", "CAMERA_INFO", "TF_TYPES", "ODOMETRY",
+    "normalize_type", "SCAN", "CLOUD", "IMAGE", "COMPRESSED", "CAMERA_INFO", "TF_TYPES", "ODOMETRY",
 ]
 
 SCAN = "sensor_msgs/msg/LaserScan"
 CLOUD = "sensor_msgs/msg/PointCloud2"
 IMAGE = "sensor_msgs/msg/Image"
+COMPRESSED = "sensor_msgs/msg/CompressedImage"  # image_transport's compressedDepth / compressed (io.compressed_depth)
+_SENSOR_KIND = {SCAN: SCAN, CLOUD: CLOUD, IMAGE: IMAGE, COMPRESSED: IMAGE}  # a compressed depth image is a depth image
+TRANSPORTS = ("compressedDepth", "compressed")  # image_transport's topics for depth, beside the image, preferred first
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
 ODOMETRY = "nav_msgs/msg/Odometry"
@@ -118,7 +124,15 @@ def _listing(topics: Mapping[str, TopicInfo]) -> str:
     return bounded(f"{t.name} ({t.msgtype})" for t in sorted(topics.values(), key=lambda t: t.name))
 
 
+def image_base(topic: str) -> tuple[str, str | None]:
+    """(the image topic, the image_transport transport) of a topic: ``/cam/depth/image_raw/compressedDepth``
+    -> (``/cam/depth/image_raw``, ``compressedDepth``); a raw image topic -> (itself, None)."""
+    head, _, last = topic.rpartition("/")
+    return (head, last) if last in TRANSPORTS and head else (topic, None)
+
+
 def _camera_info_for(image_topic: str, topics: Mapping[str, TopicInfo]) -> str | None:
+    image_topic = image_base(image_topic)[0]
     sibling = image_topic.rsplit("/", 1)[0] + "/camera_info"
     if sibling in topics and topics[sibling].msgtype == CAMERA_INFO:
         return sibling
@@ -149,41 +163,58 @@ def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_to
     label = {SCAN: "LaserScan", CLOUD: "PointCloud2", IMAGE: "Image"}
     exclusive = any(named.values())
     chosen: dict[str, list[str]] = {SCAN: [], CLOUD: [], IMAGE: []}
-    for msgtype, names in named.items():
+    for kind, names in named.items():
         for name in names:
             key = name if name in topics else ("/" + name if "/" + name in topics else None)
-            of_type = [t.name for t in topics.values() if t.msgtype == msgtype]
+            of_type = [t.name for t in topics.values() if _SENSOR_KIND.get(t.msgtype) == kind]
             if key is None:
                 raise InputError(
-                    f"{option[msgtype]} {name}: {source} has no topic {name}; its {label[msgtype]} topics: "
+                    f"{option[kind]} {name}: {source} has no topic {name}; its {label[kind]} topics: "
                     f"{bounded(sorted(of_type))}; all topics: {_listing(topics)}")
-            if topics[key].msgtype != msgtype:
+            if _SENSOR_KIND.get(topics[key].msgtype) != kind:
                 raise InputError(
-                    f"{option[msgtype]} {name}: topic {key} in {source} is {topics[key].msgtype}, not "
-                    f"{label[msgtype]}; its {label[msgtype]} topics: {bounded(sorted(of_type))}")
-            if key not in chosen[msgtype]:
-                chosen[msgtype].append(key)
+                    f"{option[kind]} {name}: topic {key} in {source} is {topics[key].msgtype}, not "
+                    f"{label[kind]}; its {label[kind]} topics: {bounded(sorted(of_type))}")
+            if key not in chosen[kind]:
+                chosen[kind].append(key)
 
+    # the same depth images on several of image_transport's topics (``rosbag record -a``): the raw
+    # Image is used, else compressedDepth, else compressed
+    rank = {None: 0, **{tr: i + 1 for i, tr in enumerate(TRANSPORTS)}}
+    best: dict[str, TopicInfo] = {}
+    for t in topics.values():
+        if _SENSOR_KIND.get(t.msgtype) == IMAGE:
+            base, transport = image_base(t.name)
+            if base not in best or rank[transport] < rank[image_base(best[base].name)[1]]:
+                best[base] = t
     for t in sorted(topics.values(), key=lambda t: t.name):
-        if t.msgtype not in chosen:
+        kind = _SENSOR_KIND.get(t.msgtype)
+        if kind is None:
             continue
-        picked = t.name in chosen[t.msgtype]
+        picked = t.name in chosen[kind]
         if exclusive and not picked:
-            sel.skipped[t.name] = (f"{label[t.msgtype]} not chosen (only the topics named with --scan-topic/"
+            sel.skipped[t.name] = (f"{label[kind]} not chosen (only the topics named with --scan-topic/"
                                    f"--cloud-topic/--depth-topic are used)")
             continue
-        if t.msgtype == SCAN:
+        if kind == SCAN:
             sel.scans.append(t.name)
-        elif t.msgtype == CLOUD:
+        elif kind == CLOUD:
             sel.clouds.append(t.name)
         else:
+            what = "Image" if t.msgtype == IMAGE else "CompressedImage"
             if not picked and "depth" not in t.name.lower():
-                sel.skipped[t.name] = ("Image whose name does not say depth (a colour camera?); "
+                sel.skipped[t.name] = (f"{what} whose name does not say depth (a colour camera?); "
                                        "if it is 16UC1/mono16/32FC1 depth, choose it with --depth-topic")
+                continue
+            base, transport = image_base(t.name)
+            if not picked and best[base] is not t:
+                sel.skipped[t.name] = (f"the same depth images as {best[base].name}"
+                                       + (f" (image_transport's {transport} transport)" if transport else "")
+                                       + "; to use this topic instead, choose it with --depth-topic")
                 continue
             info = _camera_info_for(t.name, topics)
             if info is None:
-                why = (f"depth Image without CameraInfo: no {t.name.rsplit('/', 1)[0]}/camera_info (nor a RealSense "
+                why = (f"depth {what} without CameraInfo: no {base.rsplit('/', 1)[0]}/camera_info (nor a RealSense "
                        f".../info/camera_info) and not exactly one CameraInfo topic in {source}")
                 if picked:
                     raise InputError(f"--depth-topic {t.name}: {why}; a depth image cannot be placed "
@@ -435,6 +466,11 @@ class LogSet:
                     continue
                 info = good_info[info_topic]
                 scale = units.get(sel.depth_units.get(topic, ""))
+                if self.topics[topic].msgtype == COMPRESSED:
+                    frame = self._compressed_depth(topic, msg, info, where, scale, fast)
+                    if frame is not None:
+                        yield topic, t, frame if not log else replace(frame, log=log)
+                    continue
                 if fast:
                     frame = dec.decode_depth_raw(msg, info, topic, where, units=scale)
                 else:
@@ -456,18 +492,33 @@ class LogSet:
             else:
                 yield topic, t, dec.decode_odometry(msg)
 
+    def _compressed_depth(self, topic: str, msg: Any, info: Any, where: str, units: float | None,
+                          fast: bool) -> dec.RawDepthFrame | DepthFrame | None:
+        """The frame of a CompressedImage depth message (``io.compressed_depth``), or None when
+        its pixels are damaged: counted and reported as an undecodable message."""
+        from . import compressed_depth
+
+        try:
+            pixels = compressed_depth.decode(msg.data, msg.format, dec.intrinsics_size(info), where)
+        except compressed_depth.DamagedPayload as err:
+            self._undecodable(topic, f"cannot decode the message {where} ({err}); the message is damaged")
+            return None
+        return dec.depth_frame(msg.header, pixels, info, topic, where, units, fast)
+
+    def _undecodable(self, topic: str, what: str) -> None:
+        self.skipped[f"cannot decode the message on {topic}"] += 1
+        if topic not in self._warned:
+            self._warned.add(topic)
+            warnings.warn(LtmapWarning(f"{what}; skipped it, and any other message on {topic} that cannot "
+                                       f"be decoded (counted in report.json messages_not_decoded)"), stacklevel=3)
+
     def _decode_or_skip(self, topic: str, decode: Any, where: str, parser: Any) -> Any:
         """The message, or None when its bytes are damaged: then it is counted in ``skipped``
         and the first one of its topic is reported as an ``LtmapWarning``."""
         try:
             return self._decode(decode, where, parser)
         except _Undecodable as err:
-            self.skipped[f"cannot decode the message on {topic}"] += 1
-            if topic not in self._warned:
-                self._warned.add(topic)
-                warnings.warn(LtmapWarning(f"{err}; skipped it, and any other message on {topic} that cannot "
-                                           f"be decoded (counted in report.json messages_not_decoded)"),
-                              stacklevel=2)
+            self._undecodable(topic, str(err))
             return None
 
     @staticmethod
