@@ -1,4 +1,5 @@
-"""Seeded byte mutations of a ROS 1 bag, an MCAP and a ROS 2 db3 through ``ltmap info``,
+"""Seeded byte mutations of a ROS 1 bag, an MCAP and a ROS 2 db3 (laser, tf and a depth camera
+recorded through image_transport's compressedDepth, PNG and RVL) through ``ltmap info``,
 ``ltmap replay --allow-truncated`` (issue 15) and the same with a window (``--start`` /
 ``--end``: the readers' seeking): the exit status is 0 or 2, never an exception
 escaping the CLI (a traceback), whatever the damage. Run in this process through click's
@@ -29,7 +30,7 @@ SEED = 1234
 @pytest.fixture(scope="module")
 def originals(tmp_path_factory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("fuzz_originals")
-    msgs = room_messages(0.0, 3.0, pillar=True)
+    msgs = sorted(room_messages(0.0, 3.0, pillar=True) + _compressed_camera(3.0), key=lambda m: m.log_time_ns)
     long_msgs = room_messages(0.0, 9.0, pillar=True)  # for a window past the tf lead: chunks before it go unread
     out = {}
     for fmt in FORMATS:
@@ -37,6 +38,27 @@ def originals(tmp_path_factory) -> dict[str, Path]:
         name = {"ros1": "log.bag", "mcap-ros2": "log.mcap", "ros2-sqlite3": "bag"}[fmt]
         out[fmt] = write_log(d / name, fmt, msgs, **kw)
         out[fmt + "-long"] = write_log(d / ("long_" + name), fmt, long_msgs, **kw)
+    return out
+
+
+def _compressed_camera(duration_s: float) -> list:
+    """A small depth camera recorded through image_transport's compressedDepth (PNG and RVL in
+    turn) at 5 Hz, so the mutations reach the compressed depth decoder too."""
+    import numpy as np
+    from logfactory import camera_info, compressed_depth, tf
+    from test_replay import T0
+
+    s = 1_000_000_000
+    px = np.full((12, 16), 1800, np.uint16)
+    px[3:6, 4:9] = 900
+    px[0, :] = 0
+    out = [tf(T0 + s // 100, [("base_link", "cam_optical", (0.1, 0.0, 0.5), (0.5, -0.5, 0.5, -0.5))], static=True)]
+    for i in range(int(duration_s * 5)):
+        t = T0 + s // 10 + i * s // 5
+        out.append(camera_info("/cam/depth/camera_info", t, width=16, height=12, fx=14, fy=14, cx=7.5, cy=5.5,
+                               frame_id="cam_optical"))  # fmt: skip
+        out.append(compressed_depth("/cam/depth/image_raw/compressedDepth", t + 1, px, codec=("png", "rvl")[i % 2],
+                                    frame_id="cam_optical"))  # fmt: skip
     return out
 
 
