@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from logfactory import FORMATS, SUFFIX, camera_info, compressed_depth, image, png16, rvl_encode, tf, write_log
+from logfactory import FORMATS, SUFFIX, camera_info, compressed_depth, image, tf, write_log
 
 from ltmap_cli.cli import cli
 from ltmap_cli.errors import LogReadError
@@ -195,8 +195,6 @@ def test_hostile_and_damaged_compressed_depth(tmp_path):
     r, _ = _replay(log, tmp_path / "o_bomb")
     _one_line(r, "is 32x24 but its CameraInfo says 640x480")
 
-    import ltmap_cli.io.compressed_depth as mod
-
     msgs = [tf(S // 2, [("map", "camera_optical")], static=True),
             camera_info("/cam/depth/camera_info", S, width=32, height=24, fx=30, fy=30, cx=15.5, cy=11.5)]
     good = [compressed_depth(f"{TOPIC}/compressedDepth", S + i * S // 10, frames[0], codec=c)
@@ -222,7 +220,7 @@ def test_hostile_and_damaged_compressed_depth(tmp_path):
             data[12 + 24] = 8
             words = ["PNG of 8-bit grey pixels, not 16-bit grey"]
         with pytest.raises(LogReadError) as e:
-            mod.decode(bytes(data), fmt_words, (32, 24), "on /x")
+            cd.decode(bytes(data), fmt_words, (32, 24), "on /x")
         assert all(w in str(e.value) for w in words), str(e.value)
 
 
