@@ -116,7 +116,8 @@ def _xy(text: str, flag: str) -> list[float]:
               help="Add a transform the log lacks (metres, radians). Repeatable.")
 @click.option("--scan-topic", multiple=True, help="LaserScan topic to use (repeatable; default: all).")
 @click.option("--cloud-topic", multiple=True, help="PointCloud2 topic to use (repeatable; default: all).")
-@click.option("--depth-topic", multiple=True, help="Depth image topic to use (repeatable; default: all).")
+@click.option("--depth-topic", multiple=True, help="Depth image topic to use: an Image, or image_transport's "
+              ".../compressedDepth or .../compressed (repeatable; default: all, each image once).")
 @click.option("--start", "start_s", type=float, metavar="SECONDS",
               help="Map the sensor frames from this many seconds of log time after the log's first message "
               "(tf from a little before); the log is read up to there without mapping it.")
