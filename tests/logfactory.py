@@ -224,12 +224,13 @@ def compressed_depth(topic: str, t_ns: int, array: Any, *, encoding: str = "16UC
 
 
 def camera_info(topic: str, t_ns: int, *, width: int, height: int, fx: float, fy: float, cx: float,
-                cy: float, frame_id: str = "camera_optical") -> Msg:
+                cy: float, frame_id: str = "camera_optical", d: Sequence[float] = (0.0,) * 5,
+                model: str = "plumb_bob") -> Msg:
     k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
     p = [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
     return Msg(topic, t_ns, "sensor_msgs/msg/CameraInfo", {
         "header": header(t_ns, frame_id), "height": height, "width": width,
-        "distortion_model": "plumb_bob", "d": [0.0] * 5, "k": k,
+        "distortion_model": model, "d": list(d), "k": k,
         "r": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], "p": p})
 
 

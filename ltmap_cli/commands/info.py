@@ -21,6 +21,7 @@ from ..config import ReplayConfig, load_config, parse_set, set_dotted
 from ..core.config import MapConfig
 from ..errors import LogReadError, TransformError
 from ..io import decode as dec
+from ..io import rectify
 from ..io.logs import IMAGE, TruncatedLogError, open_logs
 from ..io.transforms import TfBuffer, choose_base_frame
 from . import sensor_options
@@ -102,6 +103,8 @@ def gather(
         # replay chooses the fixed frame when its first sensor frame is released (tf_wait after
         # it, in log time), from the tf it has by then: the frames at that point, as replay sees them
         used_sensors = set(sel.sensor_topics)
+        infos = set(sel.depths.values())  # CameraInfo topics: their first message tells the lens
+        info_first: dict[str, object] = {}
         wait_ns = int(ReplayConfig().tf_wait * NS)
         release_ns: int | None = None
         early: set[str] | None = None
@@ -113,6 +116,11 @@ def gather(
             counts[topic] = counts.get(topic, 0) + 1
             first.setdefault(topic, t)
             last[topic] = t
+            if topic in infos and topic not in info_first:
+                try:
+                    info_first[topic] = _decode(decode, parsers.get(topic))
+                except Exception:  # noqa: BLE001 - a damaged CameraInfo: replay takes the next one
+                    pass
             if topic in tf_topics or topic in odom_topics or (topic in sensors and topic not in sensor_first):
                 try:
                     msg = _decode(decode, parsers.get(topic))
@@ -188,6 +196,14 @@ def gather(
                             f"angle_min + i * angle_increment, as ROS does, and counts such scans")
             if kind == "depth":
                 used[topic] += f" (CameraInfo {sel.depths[topic]})"
+                cam = info_first.get(sel.depths[topic])
+                lens = rectify.distortion(cam) if cam is not None else None
+                if lens is not None:
+                    if lens.model in rectify.MODELS:
+                        used[topic] += f", lens {lens.model} rectified to pinhole"
+                    else:
+                        warnings.append(f"{topic}: replay would stop on its first image: its CameraInfo has "
+                                        f"distortion model {lens.model!r}; ltmap rectifies {', '.join(rectify.MODELS)}")
                 enc = str(getattr(msg, "encoding", ""))
                 if hasattr(msg, "format"):  # a CompressedImage: the check replay makes on every image
                     from ..io import compressed_depth

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import LogReadError
+from . import rectify
 from .frames import CameraIntrinsics, CloudFrame, DepthFrame, OdometrySample, ScanFrame, TfSample
 from .transforms import norm
 
@@ -181,11 +182,7 @@ def _checked_intrinsics(info: Any, shape: tuple[int, int], where: str) -> Camera
 
 def decode_depth(msg: Any, info: Any, topic: str, where: str, units: float | None = None) -> DepthFrame:
     """A DepthFrame; ``units``: metres per unit of a 16-bit image (a RealSense ``Depth Units``)."""
-    depth = depth_metres(msg, where, units)
-    intr = _checked_intrinsics(info, depth.shape, where)
-    h0 = msg.header
-    return DepthFrame(stamp_ns=stamp_ns(h0.stamp), frame_id=frame_name(h0.frame_id), depth_m=depth,
-                      intrinsics=intr, topic=topic)
+    return depth_frame(msg.header, depth_raw(msg, where), info, topic, where, units, fast=False)
 
 
 def decode_tf(msg: Any, static: bool) -> list[TfSample]:
@@ -321,10 +318,10 @@ def cdr_camera_info(data: bytes | memoryview) -> _Obj:
     c = _Cdr(data)
     h = c.header()
     height, width = c.u32(), c.u32()
-    c.string()  # distortion_model
-    c.array("<f8", 8)  # d
+    model = c.string()
+    d = c.array("<f8", 8)
     k = c.take(_F64x9, 8)
-    return _Obj(header=h, height=height, width=width, k=k)
+    return _Obj(header=h, height=height, width=width, distortion_model=model, d=d, k=k)
 
 
 def cdr_tf(data: bytes | memoryview) -> _Obj:
@@ -416,8 +413,11 @@ def depth_frame(header: Any, raw: np.ndarray, info: Any, topic: str, where: str,
     """The frame of decoded depth pixels (uint16 in ``units`` m, default mm, 0 invalid; or
     float32 m, NaN invalid): a ``RawDepthFrame`` (``fast``) or a ``DepthFrame``."""
     if units is not None and units != MM and raw.dtype == np.uint16:
-        raw = raw.astype(np.float32) * np.float32(units)  # (0 stays 0: invalid, as decode_depth_raw has it)
+        raw = raw.astype(np.float32) * np.float32(units)  # (0 stays 0: invalid)
     intr = _checked_intrinsics(info, raw.shape, where)
+    lens = rectify.distortion(info)
+    if lens is not None:  # a pinhole image of the same K (io.rectify)
+        raw = rectify.rectify(raw, intr.fx, intr.fy, intr.cx, intr.cy, lens, where)
     frame = RawDepthFrame(stamp_ns=stamp_ns(header.stamp), frame_id=frame_name(header.frame_id), raw=raw,
                           intrinsics=intr, topic=topic)
     if fast:
@@ -429,10 +429,4 @@ def depth_frame(header: Any, raw: np.ndarray, info: Any, topic: str, where: str,
 def decode_depth_raw(msg: Any, info: Any, topic: str, where: str, units: float | None = None) -> RawDepthFrame:
     """As ``decode_depth``, keeping the raw pixels (a ``RawDepthFrame``); 16-bit pixels in
     ``units`` other than millimetres become float32 metres."""
-    raw = depth_raw(msg, where)
-    if units is not None and units != MM and raw.dtype == np.uint16:
-        raw = raw.astype(np.float32) * np.float32(units)
-    intr = _checked_intrinsics(info, raw.shape, where)
-    h0 = msg.header
-    return RawDepthFrame(stamp_ns=stamp_ns(h0.stamp), frame_id=frame_name(h0.frame_id), raw=raw, intrinsics=intr,
-                         topic=topic)
+    return depth_frame(msg.header, depth_raw(msg, where), info, topic, where, units, fast=True)
