@@ -12,6 +12,8 @@ Exit status 2, after the listing, for a truncated log (unless --allow-truncated)
 
 from __future__ import annotations
 
+import contextlib
+
 import json
 from pathlib import Path
 
@@ -117,10 +119,8 @@ def gather(
             first.setdefault(topic, t)
             last[topic] = t
             if topic in infos and topic not in info_first:
-                try:
+                with contextlib.suppress(Exception):  # a damaged CameraInfo: replay takes the next one
                     info_first[topic] = _decode(decode, parsers.get(topic))
-                except Exception:  # noqa: BLE001 - a damaged CameraInfo: replay takes the next one
-                    pass
             if topic in tf_topics or topic in odom_topics or (topic in sensors and topic not in sensor_first):
                 try:
                     msg = _decode(decode, parsers.get(topic))
