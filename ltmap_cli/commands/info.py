@@ -13,7 +13,6 @@ Exit status 2, after the listing, for a truncated log (unless --allow-truncated)
 from __future__ import annotations
 
 import contextlib
-
 import json
 from pathlib import Path
 
