@@ -336,8 +336,10 @@ def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
     assert np.float64(img[7, 7]) == reach
     box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
-    n, nxt = projective_blocks(img, tmin, tmax, dil, f, f, 7.0, 7.0, Tinv, box, res, band, keys, masks, 0)
-    assert nxt == -1
+    none, skipped = np.empty(0, dtype=np.int64), np.empty(64, dtype=np.int64)
+    n, ns, nxt = projective_blocks(img, tmin, tmax, dil, f, f, 7.0, 7.0, Tinv, box, res, band, keys, masks, 0,
+                                   none, skipped, 0)  # fmt: skip
+    assert nxt == -1 and ns == 0
     blocks = {int(keys[q]): masks[q] for q in range(n)}
     off = voxel_offset(0, 0, k0)
     word = blocks.get(pack_block(0, 0, k0 >> 3), np.zeros(8, dtype=np.uint64))[off >> 6]

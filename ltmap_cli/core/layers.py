@@ -18,6 +18,7 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
+import itertools
 import threading
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -35,13 +36,16 @@ from .grid import (
     band_k_range,
     find_block,
     get_or_add_block,
+    pack_blocks,
     voxel_offset,
 )
 from .projective import (
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
+    projective_fill,
     projective_keys,
+    stale_skips,
 )
 from .raycast import (
     DEPTH_CAP_MIN,
@@ -596,6 +600,10 @@ def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
             np.zeros(4 * slots, dtype=np.uint64))  # fmt: skip
 
 
+_QUIET_VERSIONS = itertools.count()
+_NO_KEYS = np.empty(0, dtype=np.int64)
+
+
 class _QuietBlocks:
     """The record of quiet O blocks that ``LayeredMap.apply_voxels`` keeps: per O block the count
     of voxels clamped free (``nfree``) and the quiet flag (``quiet``)."""
@@ -624,6 +632,7 @@ class _QuietBlocks:
         quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.quiet, o.block_coords,
                      d.table_keys, d.table_vals)  # fmt: skip
         self.d, self.d_blocks = d, d.n_blocks
+        self.version = next(_QUIET_VERSIONS)  # (the flags may have changed: publish them again)
 
     def revalidate(self, lmap: LayeredMap) -> None:
         """D gained blocks (the tick rules' obstacles, long-term seeds) or was replaced: quiet
@@ -634,10 +643,13 @@ class _QuietBlocks:
 
 class DepthProjection(NamedTuple):
     """The misses the projection makes for one depth image (``LayeredMap.depth_projection``,
-    ``core.projective.projective_blocks``): per block its packed coordinates and its voxels' bits."""
+    ``core.projective.projective_blocks``): per block its packed coordinates and its voxels' bits;
+    the blocks it skipped as quiet, and what ``projective_fill`` needs to make theirs."""
 
-    keys: np.ndarray  # (n,) int64
+    keys: np.ndarray  # (n,) int64, ascending
     masks: np.ndarray  # (n, 8) uint64
+    skipped: np.ndarray | None = None  # (m,) int64: numbers in the box of blocks left as quiet
+    fill: tuple | None = None  # projective_fill's arguments before ``blocks``
 
 
 def _depth_view(depth: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -661,6 +673,8 @@ class LayeredMap:
 
     quiet_blocks = True  # misses in quiet blocks are skipped (see apply_voxels); False: every miss updates
     _quiet: _QuietBlocks | None = None
+    _quiet_keys: np.ndarray = _NO_KEYS  # the quiet blocks as last published for the workers (_publish_quiet)
+    _quiet_keys_version = -1
 
     def __init__(self, cfg: MapConfig | None = None, static: StaticGrid | None = None):
         self.cfg = cfg or MapConfig()
@@ -806,11 +820,16 @@ class LayeredMap:
         T = np.ascontiguousarray(T, dtype=np.float64)
         R, t = T[:3, :3], T[:3, 3]
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
-        keys, masks = depth_projection_blocks(depth, unit_mm, float(fx), float(fy), float(cx), float(cy),
-                                              np.ascontiguousarray(t), Tinv, float(max_range),
-                                              float(self.cfg.sensor.projective_band), ends, self.resolution,
-                                              PROJECTIVE_CHUNK_BLOCKS)  # fmt: skip
-        return DepthProjection(keys, masks)
+        band = float(self.cfg.sensor.projective_band)
+        keys, masks, skipped, reach, tmin, tmax, dil, box = depth_projection_blocks(
+            depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(t), Tinv,
+            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS,
+            self._quiet_keys if self.quiet_blocks else _NO_KEYS,
+        )  # fmt: skip
+        if not len(skipped):
+            return DepthProjection(keys, masks)
+        return DepthProjection(keys, masks, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
+                                                      float(cy), Tinv, box, self.resolution, band))  # fmt: skip
 
     def projective_tail(self) -> float:
         """How far before its end a depth ray is walked in projective mode (m): the band and an
@@ -926,6 +945,8 @@ class LayeredMap:
         counters = np.zeros(2, dtype=np.int64)
         q.ch_meta[0] = 0
         self._apply(q, hits, misses, 0, counters)
+        if projection is not None and projection.skipped is not None:  # blocks a worker took as quiet
+            projection = self._fill_stale(q, projection)
         if projection is not None:  # the misses the projection makes (core.projective), in batches
             if self._proj_buffer is None:
                 self._proj_buffer = np.empty(1 << 18, dtype=np.int64)
@@ -938,7 +959,35 @@ class LayeredMap:
                 self._apply(q, hits[:0], buf[:n], 1, counters)
         if self.quiet_blocks and q.ch_meta[0]:
             q.update(self, int(q.ch_meta[0]))
+        if self.quiet_blocks and q.version != self._quiet_keys_version:
+            self._publish_quiet(q)
         return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
+
+    def _fill_stale(self, q: _QuietBlocks, projection: DepthProjection) -> DepthProjection:
+        """The projection with the masks of the blocks its worker skipped as quiet that are quiet no
+        more (the worker saw an older list; ``_publish_quiet``), in key order: what it would have
+        been with the map as the frame begins."""
+        o = self.O
+        box = projection.fill[9]
+        stale = stale_skips(projection.skipped, box, o.table_keys, o.table_vals, q.quiet)
+        if not len(stale):
+            return projection
+        keys = np.empty(len(stale), dtype=np.int64)
+        masks = np.empty((len(stale), 8), dtype=np.uint64)
+        n = projective_fill(*projection.fill, stale, keys, masks)
+        if not n:
+            return projection
+        keys = np.concatenate([projection.keys, keys[:n]])
+        order = np.argsort(keys, kind="stable")
+        return DepthProjection(keys[order], np.concatenate([projection.masks, masks[:n]])[order])
+
+    def _publish_quiet(self, q: _QuietBlocks) -> None:
+        """The quiet O blocks' packed keys, sorted, for the workers' projection to skip
+        (``depth_projection``): a new array each time (a worker may hold the old one)."""
+        o = self.O
+        idx = np.nonzero(q.quiet[: o.n_blocks])[0]
+        self._quiet_keys = np.sort(pack_blocks(o.block_coords[idx]))
+        self._quiet_keys_version = q.version
 
     def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:
         """``apply_voxels_kernel`` from ``phase`` (0: hits then misses; 1: misses only), growing

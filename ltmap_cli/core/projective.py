@@ -225,12 +225,138 @@ def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, start):
+def _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band):
+    """The frame's constants for ``_block_class`` / ``_block_fill``: (far: the greatest reach,
+    <= 0 when nothing is seen; the frustum's side planes; a voxel step along x, y, z in the
+    optical frame, 9 numbers)."""
+    rmax = -1.0
+    for a in range(tmax.shape[1]):
+        for b in range(tmax.shape[2]):
+            rmax = max(rmax, np.float64(tmax[0, a, b]))
+    far = rmax - band
+    # the frustum's side planes through the camera centre (pixel edges -0.5 and w - 0.5), unit normals
+    planes = np.empty(8)
+    planes[0], planes[1] = (-0.5 - cx) / fx, (w - 0.5 - cx) / fx
+    planes[2], planes[3] = (-0.5 - cy) / fy, (h - 0.5 - cy) / fy
+    for t in range(4):
+        planes[4 + t] = 1.0 / np.sqrt(1.0 + planes[t] * planes[t])
+    e = np.empty(9)
+    for c in range(3):  # e[3 c + r]: a voxel step along axis c, row r of the optical frame
+        for r in range(3):
+            e[3 * c + r] = Tinv[r, c] * res
+    return far, planes, e
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far, planes, e):
+    """(class, px0, py0, pz0) of block (bi, bj, bk): ``_classify``'s class of the whole block,
+    and the centre of its voxel (0, 0, 0) in the optical frame."""
+    cx0 = (bi * BLOCK + 0.5) * res
+    cy0 = (bj * BLOCK + 0.5) * res
+    cz0 = (bk * BLOCK + 0.5) * res
+    px0 = Tinv[0, 0] * cx0 + Tinv[0, 1] * cy0 + Tinv[0, 2] * cz0 + Tinv[0, 3]
+    py0 = Tinv[1, 0] * cx0 + Tinv[1, 1] * cy0 + Tinv[1, 2] * cz0 + Tinv[1, 3]
+    pz0 = Tinv[2, 0] * cx0 + Tinv[2, 1] * cy0 + Tinv[2, 2] * cz0 + Tinv[2, 3]
+    ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2 = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
+    g = 0.5 * (BLOCK - 1)  # the block's centre, in voxel steps from voxel (0, 0, 0)
+    cls, _, _ = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g,
+                          BLOCK, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
+                          planes, tmin, tmax)  # fmt: skip
+    return cls, px0, py0, pz0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes, e, mask):
+    """The miss bits of a FRONT or MIXED block into ``mask`` (8,); True when it has any."""
+    ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2 = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
+    full = ~np.uint64(0)
+    Q = BLOCK // 2
+    if cls == FRONT:  # every voxel's centre is nearer than its pixel's range - band
+        for t in range(8):
+            mask[t] = full
+        return True
+    for t in range(8):
+        mask[t] = 0
+    found = False
+    for sub in range(8):  # the block's quarters (4 x 4 x 4)
+        sa, sc, se = (sub >> 2) * Q, ((sub >> 1) & 1) * Q, (sub & 1) * Q
+        g2 = 0.5 * (Q - 1)
+        qcls, qlo, qhi = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
+                                   py0 + ex1 * (sa + g2) + ey1 * (sc + g2) + ez1 * (se + g2),
+                                   pz0 + ex2 * (sa + g2) + ey2 * (sc + g2) + ez2 * (se + g2), Q,
+                                   ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w,
+                                   h, planes, tmin, tmax)  # fmt: skip
+        if qcls == CULLED:
+            continue
+        if qcls == FRONT:  # all its 64 voxels: word a of the mask holds voxels (a, c, e) as bits c * 8 + e
+            found = True
+            pat = np.uint64(0)
+            for c in range(sc, sc + Q):
+                pat |= np.uint64((1 << Q) - 1) << np.uint64(c * BLOCK + se)
+            for a in range(sa, sa + Q):
+                mask[a] |= pat
+            continue
+        qlo2 = qlo * qlo if qlo > 0.0 else -1.0  # (a miss needs reach > 0)
+        qhi2 = qhi * qhi if qhi > 0.0 else -1.0
+        for a in range(sa, sa + Q):
+            for c in range(sc, sc + Q):
+                for ee in range(se, se + Q):
+                    x = px0 + a * ex0 + c * ey0 + ee * ez0  # the voxel's centre in the optical frame
+                    y = py0 + a * ex1 + c * ey1 + ee * ez1
+                    z = pz0 + a * ex2 + c * ey2 + ee * ez2
+                    d2 = x * x + y * y + z * z
+                    if z <= 0.0 or d2 >= qhi2:  # behind the camera, or beyond the quarter's bound
+                        continue
+                    free = d2 < qlo2  # nearer than the quarter's bound: a miss without a lookup
+                    if not free:  # its pixel
+                        iz = 1.0 / z
+                        uf = fx * x * iz + cx + 0.5
+                        vf = fy * y * iz + cy + 0.5
+                        su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
+                        rim = True  # test the pixels at the rim of its projection
+                        if uf >= 0.0 and uf < w and vf >= 0.0 and vf < h:
+                            ui, vi = np.int64(uf), np.int64(vf)
+                            r = np.float64(reach[vi, ui])
+                            free = r > 0.0 and r * r > d2
+                            if not free and su < TILE and sv < TILE:  # the rim's pixels lie in at most 2 x 2
+                                t0 = max(np.int64(uf - su), 0) // TILE  # tiles: any range far enough there?
+                                t1 = min(np.int64(uf + su), w - 1) // TILE
+                                s0 = max(np.int64(vf - sv), 0) // TILE
+                                s1 = min(np.int64(vf + sv), h - 1) // TILE
+                                r = max(max(tmax[0, s0, t0], tmax[0, s0, t1]), max(tmax[0, s1, t0], tmax[0, s1, t1]))
+                                r = np.float64(r) - band
+                                rim = r > 0.0 and r * r > d2
+                            elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
+                                r = np.float64(dil[(vi // TILE) >> 1, (ui // TILE) >> 1]) - band
+                                rim = r > 0.0 and r * r > d2
+                        else:  # outside the image: its rim too, unless within half a voxel of it
+                            rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
+                        if not free and rim:  # partly seen past an occluding edge?
+                            for q in range(8):
+                                du = su * (-1.0 if q == 0 or q == 3 or q == 5 else (1.0 if q == 2 or q == 4 or q == 7 else 0.0))
+                                dv = sv * (-1.0 if q < 3 else (1.0 if q > 4 else 0.0))
+                                ug, vg = uf + du, vf + dv
+                                if ug >= 0.0 and ug < w and vg >= 0.0 and vg < h:
+                                    r = np.float64(reach[np.int64(vg), np.int64(ug)])
+                                    if r > 0.0 and r * r > d2:
+                                        free = True
+                                        break
+                    if free:
+                        found = True
+                        off = (a << (2 * BLOCK_BITS)) | (c << BLOCK_BITS) | ee
+                        mask[off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+    return found
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, start,
+                      quiet_keys, skipped, n_skipped):  # fmt: skip
     """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive)
     that the projection makes misses, block by block: the block's packed coordinates
     (``grid.pack_block``) into ``keys`` and its voxels' bits (``grid.voxel_offset`` order) into
-    ``masks`` (n, 8), from block number ``start`` of the box (x, y, z order); returns (n, the block
-    to go on from when ``keys`` is full, -1 when done). Reads no map state (a worker thread's part).
+    ``masks`` (n, 8), from block number ``start`` of the box (x, y, z order); returns (n, the
+    blocks skipped so far, the block to go on from when ``keys`` or ``skipped`` is full, -1 when
+    done). Reads no map state (a worker thread's part).
 
     ``reach``, ``tmin``, ``tmax``, ``dil``: ``depth_range_image``; ``Tinv`` (3, 4): fixed frame ->
     optical frame. A voxel is a miss when its centre (z > 0 in the optical frame) is nearer than
@@ -238,139 +364,86 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     pixels at the rim of its projection (centre +- half a voxel's projected size: a voxel partly
     seen past an occluding edge, which rays passing its corner would clear). Blocks, then their
     4 x 4 x 4 quarters, that surely hold no miss are skipped and those that surely are all misses
-    are taken whole (``_classify``), without testing their voxels."""
+    are taken whole (``_classify``), without testing their voxels.
+
+    ``quiet_keys``: sorted packed keys of O blocks that were quiet (``LayeredMap.apply_voxels``:
+    a miss there changes nothing) when the map thread last published them; a block in the
+    frustum that is one of them is not filled: its number in the box goes to ``skipped``
+    (from ``n_skipped`` on), for the map thread to fill if it is quiet no more
+    (``projective_fill``). The result is the same either way."""
     h, w = reach.shape
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
     bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
     nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
     nblocks = (bi1 - bi0 + 1) * nbj * nbk
-    rmax = -1.0
-    for a in range(tmax.shape[1]):
-        for b in range(tmax.shape[2]):
-            rmax = max(rmax, np.float64(tmax[0, a, b]))
-    far = rmax - band
+    far, planes, e = _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
     if far <= 0.0:
-        return 0, -1
-    # the frustum's side planes through the camera centre (pixel edges -0.5 and w - 0.5), unit normals
-    planes = np.empty(8)
-    planes[0], planes[1] = (-0.5 - cx) / fx, (w - 0.5 - cx) / fx
-    planes[2], planes[3] = (-0.5 - cy) / fy, (h - 0.5 - cy) / fy
-    for t in range(4):
-        planes[4 + t] = 1.0 / np.sqrt(1.0 + planes[t] * planes[t])
-    ex0, ex1, ex2 = Tinv[0, 0] * res, Tinv[1, 0] * res, Tinv[2, 0] * res  # a voxel step along x, in the optical frame
-    ey0, ey1, ey2 = Tinv[0, 1] * res, Tinv[1, 1] * res, Tinv[2, 1] * res
-    ez0, ez1, ez2 = Tinv[0, 2] * res, Tinv[1, 2] * res, Tinv[2, 2] * res
-    full = ~np.uint64(0)
-    Q = BLOCK // 2
+        return 0, n_skipped, -1
     n = 0
     cap = keys.shape[0]
+    nq = quiet_keys.shape[0]
     for b in range(start, nblocks):
-        if n == cap:
-            return n, b
+        if n == cap or n_skipped == skipped.shape[0]:
+            return n, n_skipped, b
         bi = bi0 + b // (nbj * nbk)
         bj = bj0 + (b // nbk) % nbj
         bk = bk0 + b % nbk
-        # voxel (0, 0, 0) of the block: its centre in the optical frame
-        cx0 = (bi * BLOCK + 0.5) * res
-        cy0 = (bj * BLOCK + 0.5) * res
-        cz0 = (bk * BLOCK + 0.5) * res
-        px0 = Tinv[0, 0] * cx0 + Tinv[0, 1] * cy0 + Tinv[0, 2] * cz0 + Tinv[0, 3]
-        py0 = Tinv[1, 0] * cx0 + Tinv[1, 1] * cy0 + Tinv[1, 2] * cz0 + Tinv[1, 3]
-        pz0 = Tinv[2, 0] * cx0 + Tinv[2, 1] * cy0 + Tinv[2, 2] * cz0 + Tinv[2, 3]
-        g = 0.5 * (BLOCK - 1)  # the block's centre, in voxel steps from voxel (0, 0, 0)
-        cls, _, _ = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g,
-                              BLOCK, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
-                              planes, tmin, tmax)  # fmt: skip
+        cls, px0, py0, pz0 = _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far,
+                                          planes, e)  # fmt: skip
         if cls == CULLED:
             continue
-        keys[n] = pack_block(bi, bj, bk)
-        if cls == FRONT:  # every voxel's centre is nearer than its pixel's range - band
-            for t in range(8):
-                masks[n, t] = full
-            n += 1
-            continue
-        for t in range(8):
-            masks[n, t] = 0
-        found = False
-        for sub in range(8):  # the block's quarters (4 x 4 x 4)
-            sa, sc, se = (sub >> 2) * Q, ((sub >> 1) & 1) * Q, (sub & 1) * Q
-            g2 = 0.5 * (Q - 1)
-            qcls, qlo, qhi = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
-                                       py0 + ex1 * (sa + g2) + ey1 * (sc + g2) + ez1 * (se + g2),
-                                       pz0 + ex2 * (sa + g2) + ey2 * (sc + g2) + ez2 * (se + g2), Q,
-                                       ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w,
-                                       h, planes, tmin, tmax)  # fmt: skip
-            if qcls == CULLED:
+        key = pack_block(bi, bj, bk)
+        if nq:
+            at = np.searchsorted(quiet_keys, key)
+            if at < nq and quiet_keys[at] == key:
+                skipped[n_skipped] = b
+                n_skipped += 1
                 continue
-            if qcls == FRONT:  # all its 64 voxels: word a of the mask holds voxels (a, c, e) as bits c * 8 + e
-                found = True
-                pat = np.uint64(0)
-                for c in range(sc, sc + Q):
-                    pat |= np.uint64((1 << Q) - 1) << np.uint64(c * BLOCK + se)
-                for a in range(sa, sa + Q):
-                    masks[n, a] |= pat
-                continue
-            qlo2 = qlo * qlo if qlo > 0.0 else -1.0  # (a miss needs reach > 0)
-            qhi2 = qhi * qhi if qhi > 0.0 else -1.0
-            for a in range(sa, sa + Q):
-                for c in range(sc, sc + Q):
-                    for e in range(se, se + Q):
-                        x = px0 + a * ex0 + c * ey0 + e * ez0  # the voxel's centre in the optical frame
-                        y = py0 + a * ex1 + c * ey1 + e * ez1
-                        z = pz0 + a * ex2 + c * ey2 + e * ez2
-                        d2 = x * x + y * y + z * z
-                        if z <= 0.0 or d2 >= qhi2:  # behind the camera, or beyond the quarter's bound
-                            continue
-                        free = d2 < qlo2  # nearer than the quarter's bound: a miss without a lookup
-                        if not free:  # its pixel
-                            iz = 1.0 / z
-                            uf = fx * x * iz + cx + 0.5
-                            vf = fy * y * iz + cy + 0.5
-                            su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
-                            rim = True  # test the pixels at the rim of its projection
-                            if uf >= 0.0 and uf < w and vf >= 0.0 and vf < h:
-                                ui, vi = np.int64(uf), np.int64(vf)
-                                r = np.float64(reach[vi, ui])
-                                free = r > 0.0 and r * r > d2
-                                if not free and su < TILE and sv < TILE:  # the rim's pixels lie in at most 2 x 2
-                                    t0 = max(np.int64(uf - su), 0) // TILE  # tiles: any range far enough there?
-                                    t1 = min(np.int64(uf + su), w - 1) // TILE
-                                    s0 = max(np.int64(vf - sv), 0) // TILE
-                                    s1 = min(np.int64(vf + sv), h - 1) // TILE
-                                    r = max(max(tmax[0, s0, t0], tmax[0, s0, t1]), max(tmax[0, s1, t0], tmax[0, s1, t1]))
-                                    r = np.float64(r) - band
-                                    rim = r > 0.0 and r * r > d2
-                                elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
-                                    r = np.float64(dil[(vi // TILE) >> 1, (ui // TILE) >> 1]) - band
-                                    rim = r > 0.0 and r * r > d2
-                            else:  # outside the image: its rim too, unless within half a voxel of it
-                                rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
-                            if not free and rim:  # partly seen past an occluding edge?
-                                for q in range(8):
-                                    du = su * (-1.0 if q == 0 or q == 3 or q == 5 else (1.0 if q == 2 or q == 4 or q == 7 else 0.0))
-                                    dv = sv * (-1.0 if q < 3 else (1.0 if q > 4 else 0.0))
-                                    ug, vg = uf + du, vf + dv
-                                    if ug >= 0.0 and ug < w and vg >= 0.0 and vg < h:
-                                        r = np.float64(reach[np.int64(vg), np.int64(ug)])
-                                        if r > 0.0 and r * r > d2:
-                                            free = True
-                                            break
-                        if free:
-                            found = True
-                            off = (a << (2 * BLOCK_BITS)) | (c << BLOCK_BITS) | e
-                            masks[n, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
-        if found:
+        keys[n] = key
+        if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
+                       e, masks[n]):  # fmt: skip
             n += 1
-    return n, -1
+    return n, n_skipped, -1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_range, band, ends, res, chunk):
+def projective_fill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, blocks, keys, masks):
+    """The masks of the box's blocks numbered ``blocks`` (``projective_blocks``' ``skipped``), as
+    ``projective_blocks`` makes them: keys into ``keys``, bits into ``masks``, block numbers of
+    those with misses into ``blocks``' head; returns how many have misses."""
+    h, w = reach.shape
+    bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
+    bj1, bk1 = box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
+    nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
+    far, planes, e = _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
+    n = 0
+    for t in range(blocks.shape[0]):
+        b = blocks[t]
+        bi = bi0 + b // (nbj * nbk)
+        bj = bj0 + (b // nbk) % nbj
+        bk = bk0 + b % nbk
+        cls, px0, py0, pz0 = _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far,
+                                          planes, e)  # fmt: skip
+        if cls == CULLED or far <= 0.0:
+            continue
+        keys[n] = pack_block(bi, bj, bk)
+        if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
+                       e, masks[n]):  # fmt: skip
+            blocks[n] = b
+            n += 1
+    return n
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_range, band, ends, res, chunk,
+                            quiet_keys):  # fmt: skip
     """``depth_range_image``, the frame's box (``ends_box``) and ``projective_blocks`` in one call
     (a worker thread then takes the GIL once for them instead of three times, with numpy in
-    between): (keys, masks) of the blocks with misses. The arrays grow from ``chunk`` blocks
-    (memory follows the frustum's free space, not the box: a box at 0.01 m holds millions of
-    blocks). ``origin``: the camera's position; ``Tinv`` (3, 4): fixed frame -> optical frame."""
+    between): (keys, masks) of the blocks with misses, the numbers of the blocks skipped as
+    ``quiet_keys``, and the range image, tiles and box (``projective_fill`` needs them). The
+    arrays grow from ``chunk`` blocks (memory follows the frustum's free space, not the box: a
+    box at 0.01 m holds millions of blocks). ``origin``: the camera's position; ``Tinv`` (3, 4):
+    fixed frame -> optical frame."""
     reach, tmin, tmax, dil = depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band)
     box = ends_box(origin, ends, 1.0 / res)
     nb = np.int64(1)
@@ -379,17 +452,41 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     cap = min(nb, chunk)
     keys = np.empty(cap, dtype=np.int64)
     masks = np.empty((cap, 8), dtype=np.uint64)
-    n, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, 0)
+    skipped = np.empty(cap, dtype=np.int64)
+    n, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, 0,
+                                   quiet_keys, skipped, 0)  # fmt: skip
     while nxt >= 0:  # full: twice the room, and on from the block it stopped at
-        keys2 = np.empty(2 * keys.shape[0], dtype=np.int64)
-        masks2 = np.empty((2 * keys.shape[0], 8), dtype=np.uint64)
-        keys2[:n] = keys[:n]
-        masks2[:n] = masks[:n]
-        keys, masks = keys2, masks2
-        m, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys[n:], masks[n:],
-                                   nxt)  # fmt: skip
+        if n == keys.shape[0]:
+            keys2 = np.empty(2 * keys.shape[0], dtype=np.int64)
+            masks2 = np.empty((2 * keys.shape[0], 8), dtype=np.uint64)
+            keys2[:n] = keys[:n]
+            masks2[:n] = masks[:n]
+            keys, masks = keys2, masks2
+        if ns == skipped.shape[0]:
+            skipped2 = np.empty(2 * skipped.shape[0], dtype=np.int64)
+            skipped2[:ns] = skipped[:ns]
+            skipped = skipped2
+        m, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys[n:],
+                                       masks[n:], nxt, quiet_keys, skipped, ns)  # fmt: skip
         n += m
-    return keys[:n], masks[:n]
+    return keys[:n], masks[:n], skipped[:ns], reach, tmin, tmax, dil, box
+
+
+@njit(cache=True, nogil=True)
+def stale_skips(skipped, box, table_keys, table_vals, quiet):
+    """Of the box's blocks ``skipped`` as quiet by a worker, those that are not quiet now (or not
+    in O: a map loaded since), in order, as a new array. Reads the map: the thread that owns it."""
+    bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
+    nbj, nbk = (box[4] >> BLOCK_BITS) - bj0 + 1, (box[5] >> BLOCK_BITS) - bk0 + 1
+    out = np.empty(skipped.shape[0], dtype=np.int64)
+    n = 0
+    for t in range(skipped.shape[0]):
+        b = skipped[t]
+        ob = find_block(table_keys, table_vals, bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk)
+        if ob < 0 or quiet[ob] == 0:
+            out[n] = b
+            n += 1
+    return out[:n]
 
 
 @njit(cache=True, nogil=True)
