@@ -168,6 +168,54 @@ def test_quiet_blocks_take_no_projective_miss():
     assert (m.O.channel("stamp")[~quiet] != stamp[~quiet]).any()
 
 
+def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
+    """The projection skips the blocks the map thread last published as quiet; the map thread
+    fills those quiet no more (``projective_fill``). A wall seen until its free space is quiet, a
+    box appearing in that space (its blocks un-quiet) and taken away: the same O (log-odds,
+    stamps, block order) and D with the list published after every frame, never published, or
+    replaced by every O block (all stale but the quiet ones), and fills happen only in the last."""
+    import ltmap_cli.core.layers as layers_mod
+    from ltmap_cli.core.grid import pack_blocks
+
+    box = _wall()
+    box[40:80, 60:100] = 1500
+    seq = [_wall()] * 8 + [box] * 10 + [_wall()] * 12
+    fills = {"n": 0, "skipped": 0}
+    real_fill, real_project = layers_mod.projective_fill, LayeredMap.depth_projection
+
+    def counting_fill(*a):
+        fills["n"] += 1
+        return real_fill(*a)
+
+    def counting_project(self, *a):
+        p = real_project(self, *a)
+        fills["skipped"] += 0 if p.skipped is None else len(p.skipped)
+        return p
+
+    monkeypatch.setattr(layers_mod, "projective_fill", counting_fill)
+    monkeypatch.setattr(LayeredMap, "depth_projection", counting_project)
+    out, counts = {}, {}
+    for how in ("fresh", "never", "stale"):
+        fills.update(n=0, skipped=0)
+        m = _map()
+        if how == "never":
+            m._publish_quiet = lambda q: None
+        elif how == "stale":
+            def every_block(q, m=m):
+                m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
+            m._publish_quiet = every_block
+        for depth in seq:
+            _integrate(m, depth)
+        o, d = m.O, m.D
+        out[how] = [o.block_coords[: o.n_blocks], o.channel("logodds"), o.channel("stamp"),
+                    d.block_coords[: d.n_blocks], d.channel("st"), d.channel("lt")]
+        counts[how] = dict(fills)
+    for how in ("never", "stale"):
+        assert all(np.array_equal(a, b) for a, b in zip(out[how], out["fresh"])), how
+    assert counts["fresh"]["skipped"] > 1000 and counts["never"]["skipped"] == 0
+    assert counts["stale"]["n"] > 10 and counts["fresh"]["n"] == 0, counts  # (serial: the list is never stale)
+
+
 def test_exact_mode_is_the_whole_ray_path():
     """``depth_integration: exact`` casts whole rays, as ``integrate`` does with the same rays."""
     a, b = _map("exact"), _map("exact")
