@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ..core.config import MapConfig
+from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
 from ..core.sensors import transform_points
@@ -89,6 +90,10 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
     if contiguous:
         depth = np.ascontiguousarray(depth)
     m.integrate_depth(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
+    if m.cfg.sensor.depth_integration == "projective":  # and the map thread's fill of blocks a worker
+        # skipped as quiet that are quiet no more: every block listed as quiet, none is
+        m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
+        m.integrate_depth(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
 
 
 GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
