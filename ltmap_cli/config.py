@@ -78,6 +78,7 @@ class ReplayConfig:
     allow_truncated: bool = False
     max_message_mb: float = DEFAULT_MAX_MESSAGE_MB  # largest chunk / message read (uncompressed); more is refused
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
+    sensor_stamps: str = "header"  # header: place a sensor frame at its header stamp; log: at its record time
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
     max_static_mb: float = DEFAULT_MAX_STATIC_MB  # memory S may take on the voxel lattice; more is refused
@@ -108,6 +109,8 @@ class Config:
     def validate(self) -> None:
         problems = _non_finite(self)
         problems += self.map.validate()
+        if self.replay.sensor_stamps not in ("header", "log"):
+            problems.append(f"replay.sensor_stamps must be header or log, got {shown(self.replay.sensor_stamps)}")
         if self.replay.mode not in ("trinary", "scale", "raw"):
             problems.append(f"replay.mode must be trinary, scale or raw, got {shown(self.replay.mode)}")
         elif not problems:  # static.* is always trinary

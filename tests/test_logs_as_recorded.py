@@ -268,6 +268,51 @@ def test_info_reports_header_stamps_against_record_time(tmp_path):
     assert "header stamps against record time" not in invoke("info", room_log(tmp_path, "plain.mcap")).stdout
 
 
+def test_a_sensor_on_its_own_clock_is_named_and_can_be_placed_at_record_time(tmp_path):
+    """A laser whose driver stamps with the device's clock (an hour ahead of tf, which follows
+    record time): every frame is skipped, and the one line says how far apart the clocks are and
+    names replay.sensor_stamps=log, which places the frames at their record time: then the map is
+    the one of the log stamped right. With a second laser on the right clock, the first is named
+    in a warning."""
+    hour = 3600 * 10**9
+
+    def own_clock(m: Msg) -> Msg:
+        if m.topic == "/scan":
+            m.fields["header"]["stamp"] += hour
+        return m
+
+    log = room_log(tmp_path, change=own_clock)
+    r = invoke("replay", log, "-o", tmp_path / "o", "--no-plots")
+    assert errors(r) == ["ltmap: error: every sensor frame was skipped (10 x): transform odom -> base_link not "
+                         "available (stamp after its last sample; no extrapolation); the header stamps of /scan are "
+                         "3600 s after those of /tf (relative to record time): a sensor on its own clock? --set "
+                         "replay.sensor_stamps=log places its frames at their record time"], r.stderr
+    assert "  - /scan: its frames cannot be placed with that tf: the header stamps of /scan are 3600 s after those " \
+        "of /tf" in invoke("info", log).stdout  # fmt: skip
+    r = invoke("replay", log, "-o", tmp_path / "log_time", "--no-plots", "--set", "replay.sensor_stamps=log")
+    assert r.exit_code == 0, r.stderr
+    ref = invoke("replay", room_log(tmp_path, "right.mcap"), "-o", tmp_path / "right", "--no-plots")
+    assert ref.exit_code == 0, ref.stderr
+    a, _ = read_state(tmp_path / "log_time" / "snapshots" / "state_final.npz")
+    b, _ = read_state(tmp_path / "right" / "snapshots" / "state_final.npz")
+    assert all(np.array_equal(a[k], b[k]) for k in b)
+    assert report(tmp_path / "log_time")["frames_used"] == {"/scan": 10}
+
+    def second_laser(m: Msg) -> list[Msg]:
+        if m.topic != "/scan":
+            return [m]
+        other = Msg("/scan_rear", m.log_time_ns, m.msgtype, {**m.fields, "header": dict(m.fields["header"])})
+        other.fields["header"]["stamp"] += hour
+        return [m, other]
+
+    msgs = [x for m in room_messages(0.0, 2.0, False) for x in second_laser(m)]
+    r = invoke("replay", write_log(tmp_path / "two.mcap", "mcap-ros2", msgs), "-o", tmp_path / "two", "--no-plots")
+    assert r.exit_code == 0, r.stderr
+    assert "ltmap: warning: no frame of /scan_rear was used: the header stamps of /scan_rear are 3600 s after " \
+        "those of /tf (relative to record time)" in r.stderr, r.stderr  # fmt: skip
+    assert report(tmp_path / "two")["header_stamp_offset_s"]["/scan_rear"] == -3600.0
+
+
 # ----------------------------------------------------------------------------- several logs, short logs
 
 

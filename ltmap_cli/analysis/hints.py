@@ -9,10 +9,13 @@ command prints them as ``ltmap: warning:`` lines.
 - A long-term map that is nearly empty because nothing was seen for ``map.layers.st_rise_s``
   (a short log, a robot that moved on): the setting and the log's duration are named.
 - A static map that was resampled to the map's resolution.
+- A sensor topic none of whose frames was used, whose header stamps are on another clock than
+  tf's (``clock_apart``): ``replay.sensor_stamps=log`` named.
 """
 
 from __future__ import annotations
 
+CLOCK_APART_S = 10.0  # a sensor's header stamps this far from tf's (relative to record time): another clock
 LT_NEARLY_EMPTY = 0.05  # long-term voxels below this fraction of the voxels seen occupied: "nearly empty"
 ST_RISE_HINT_S = 5.0  # the value a hint proposes for map.layers.st_rise_s on a short log
 
@@ -25,6 +28,7 @@ def replay_hints(report: dict, *, st_rise_s: float, resolution: float) -> list[s
         out.append(f"{n} scans on {topic} have an angle_max that disagrees with their ranges; their beams were "
                    f"placed at angle_min + i * angle_increment, as ROS does")
     out.extend(_idle_logs(report))
+    out.extend(_clock_hints(report))
     hint = _long_term_hint(report, st_rise_s)
     if hint:
         out.append(hint)
@@ -36,6 +40,40 @@ def replay_hints(report: dict, *, st_rise_s: float, resolution: float) -> list[s
                    f"{resolution:g} m (a cell is occupied when any source cell in it is, unknown only where no "
                    f"known source cell falls" + (f": {unknown} unknown cells" if unknown is not None else "")
                    + "); give --resolution " + f"{src:g} to keep its cells")
+    return out
+
+
+def clock_apart(topic: str, offsets_s: dict[str, float], tf_topics) -> str | None:
+    """A clause for a sensor ``topic`` whose header stamps lie more than CLOCK_APART_S from those
+    of every tf / odometry topic in ``tf_topics``, relative to record time (``offsets_s``: record
+    time minus header stamp of each topic's first message, s): its frames cannot be placed with
+    that tf; the remedy. None when they agree (or nothing is known)."""
+    refs = {t: offsets_s[t] for t in tf_topics if t in offsets_s}
+    if topic not in offsets_s or not refs:
+        return None
+    ref, ref_off = min(refs.items(), key=lambda kv: abs(kv[1] - offsets_s[topic]))
+    apart = ref_off - offsets_s[topic]  # > 0: the sensor's stamps are later than tf's
+    if abs(apart) <= CLOCK_APART_S:
+        return None
+    s = abs(apart)
+    text = f"{s:.0f} s" + (f" ({s / 86400:.1f} days)" if s >= 86400 else "")
+    return (f"the header stamps of {topic} are {text} {'after' if apart > 0 else 'before'} those of {ref} (relative "
+            f"to record time): a sensor on its own clock? --set replay.sensor_stamps=log places its frames at their "
+            f"record time")  # fmt: skip
+
+
+def _clock_hints(report: dict) -> list[str]:
+    """Sensor topics none of whose frames was used, stamped on another clock than tf."""
+    offsets = report.get("header_stamp_offset_s") or {}
+    used = report.get("frames_used") or {}
+    sensors = {t for topics in (report.get("topics_used") or {}).values() for t in topics}
+    tf_topics = [t for t in offsets if t not in sensors]
+    out = []
+    for topic in sorted(report.get("frames_skipped_by_topic") or {}):
+        if not used.get(topic):
+            clause = clock_apart(topic, offsets, tf_topics)
+            if clause:
+                out.append(f"no frame of {topic} was used: {clause}")
     return out
 
 

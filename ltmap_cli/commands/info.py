@@ -18,6 +18,7 @@ from pathlib import Path
 
 import click
 
+from ..analysis.hints import clock_apart
 from ..config import ReplayConfig, load_config, parse_set, set_dotted
 from ..core.config import MapConfig
 from ..errors import LogReadError, TransformError
@@ -248,14 +249,11 @@ def gather(
         else:
             todo = "tf refuses an empty frame name: fix the recording, or give the transform with --tf"
         warnings.append(f"{n} samples {what} not used: {todo}")
-    tf_offsets = {k: v for k, v in offset.items() if k in tf_topics or k in odom_topics}
-    for topic in sel.sensor_topics:
-        if topic not in offset or not tf_offsets:
-            continue
-        ref, ref_off = min(tf_offsets.items(), key=lambda kv: abs(kv[1] - offset[topic]))
-        if abs(ref_off - offset[topic]) > 10 * NS:
-            warnings.append(f"{topic}: its header stamps and those of {ref} are {_offset_text(offset[topic] - ref_off)} "
-                            f"apart (relative to record time): its frames cannot be placed with that tf")
+    offsets_s = {k: v / NS for k, v in offset.items()}
+    for topic in sel.sensor_topics:  # replay's own check when every frame is skipped (analysis.hints)
+        clause = clock_apart(topic, offsets_s, [k for k in offset if k in tf_topics or k in odom_topics])
+        if clause:
+            warnings.append(f"{topic}: its frames cannot be placed with that tf: {clause}")
     if stopped:
         warnings.append(f"log is truncated or corrupt: {stopped}")
     starts = [v for v in first.values()]

@@ -359,7 +359,7 @@ class LogSet:
 
     def messages(self, selection: TopicSelection | None = None, *, fast: bool = False,
                  depth_max_rate: float = 0.0, start_ns: int | None = None,
-                 end_ns: int | None = None) -> Iterator[tuple[str, int, Frame]]:
+                 end_ns: int | None = None, log_stamps: bool = False) -> Iterator[tuple[str, int, Frame]]:
         """``(topic, log_time_ns, item)`` in log-time order; item is a ScanFrame, CloudFrame,
         DepthFrame, TfSample (one per transform of a TFMessage) or OdometrySample.
 
@@ -373,7 +373,9 @@ class LogSet:
         the same frames, anything unusual falls back to the generic deserializer) and depth images
         come as ``decode.RawDepthFrame`` (raw pixels, no float copy). ``depth_max_rate`` (Hz, 0:
         off): per depth topic, an image whose header stamp is less than 0.9 / rate after the last
-        image passed on is dropped before it is decoded (counted in ``rate_skipped``)."""
+        image passed on is dropped before it is decoded (counted in ``rate_skipped``).
+        ``log_stamps`` (``replay.sensor_stamps=log``): sensor frames carry their record time as
+        their stamp, not their header's (a sensor on its own clock)."""
         sel = selection if selection is not None else self.select()
         kinds: dict[str, str] = {}
         for t in sel.scans:
@@ -469,23 +471,23 @@ class LogSet:
                 if self.topics[topic].msgtype == COMPRESSED:
                     frame = self._compressed_depth(topic, msg, info, where, scale, fast)
                     if frame is not None:
-                        yield topic, t, frame if not log else replace(frame, log=log)
+                        yield topic, t, _tag(frame, log, t if log_stamps else None)
                     continue
                 if fast:
                     frame = dec.decode_depth_raw(msg, info, topic, where, units=scale)
                 else:
                     frame = dec.decode_depth(msg, info, topic, where, units=scale)
-                yield topic, t, frame if not log else replace(frame, log=log)
+                yield topic, t, _tag(frame, log, t if log_stamps else None)
                 continue
             msg = self._decode_or_skip(topic, decode, where, parser)
             if msg is None:
                 continue
             if kind == "scan":
                 frame = dec.decode_scan(msg, topic, where)
-                yield topic, t, frame if not log else replace(frame, log=log)
+                yield topic, t, _tag(frame, log, t if log_stamps else None)
             elif kind == "cloud":
                 frame = dec.decode_cloud(msg, topic, where)
-                yield topic, t, frame if not log else replace(frame, log=log)
+                yield topic, t, _tag(frame, log, t if log_stamps else None)
             elif kind == "tf":
                 for s in dec.decode_tf(msg, static=topic in static):
                     yield topic, t, s
@@ -547,6 +549,17 @@ class LogSet:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _tag(frame: Any, log: int, stamp_ns: int | None) -> Any:
+    """A sensor frame with the index of the log it comes from and, given ``stamp_ns`` (its record
+    time: ``replay.sensor_stamps=log``), that stamp instead of its header's."""
+    changes: dict[str, int] = {}
+    if log:
+        changes["log"] = log
+    if stamp_ns is not None:
+        changes["stamp_ns"] = stamp_ns
+    return replace(frame, **changes) if changes else frame
 
 
 def _merge(streams: list[Iterator[tuple]], starts: list[int | None]) -> Iterator[tuple]:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..analysis.hints import clock_apart
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError
@@ -272,9 +273,11 @@ class Replay:
             self.executor = OrderedExecutor(self.threads)
             win_start, win_end = logs.window_ns(cfg.replay.start_s, cfg.replay.end_s)  # None: not bounded
             stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate,
-                                   start_ns=win_start, end_ns=win_end)  # fmt: skip
+                                   start_ns=win_start, end_ns=win_end,
+                                   log_stamps=cfg.replay.sensor_stamps == "log")  # fmt: skip
             reader = open_reader(stream, timer.seconds, self.threads)
             stopped_ns = None  # interrupt(): the log time of the last sensor frame taken
+            offsets: dict[str, float] = {}  # topic -> record time - header stamp of its first message (s)
             last_ns = start_ns
             try:
                 self._feed_localization(None)
@@ -286,6 +289,8 @@ class Replay:
                         if not isinstance(item, (TfSample, OdometrySample)):
                             continue
                     last_ns = log_ns
+                    if topic not in offsets and not getattr(item, "static", False):
+                        offsets[topic] = (log_ns - item.stamp_ns) / NS
                     self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
@@ -314,8 +319,9 @@ class Replay:
                 "window": None if not (cfg.replay.start_s or cfg.replay.end_s) else {
                     "start_s": round((start_ns - logs.start_ns) / NS, 3), "end_s": round((end_ns - logs.start_ns) / NS, 3)},
                 "interrupted_at_s": None if stopped_ns is None else round((end_ns - logs.start_ns) / NS, 3),
+                "header_stamp_offset_s": {t: round(v, 6) for t, v in sorted(offsets.items())},
             }
-        self._check_used(sel, inputs["messages_not_decoded"])
+        self._check_used(sel, inputs["messages_not_decoded"], offsets)
         return self._finish(run, inputs, static_info, resume_info)
 
     def _window(self, logs) -> tuple[int, int]:
@@ -332,7 +338,7 @@ class Replay:
         self._window_start_ns = start_ns
         return start_ns, end_ns
 
-    def _check_used(self, sel, not_decoded: dict) -> None:
+    def _check_used(self, sel, not_decoded: dict, offsets: dict[str, float]) -> None:
         """A run in which no frame was integrated fails, naming why (SPEC 4)."""
         if sum(self.counts.used.values()):
             return
@@ -344,7 +350,10 @@ class Replay:
         logs = ", ".join(str(p) for p in self.req.logs)
         if self.counts.skipped:
             reason, n = self.counts.skipped.most_common(1)[0]
-            raise TransformError(f"every sensor frame was skipped ({n} x): {reason}")
+            tf_topics = [t for t in offsets if t not in sel.sensor_topics]
+            clocks = [c for c in (clock_apart(t, offsets, tf_topics) for t in sel.sensor_topics) if c]
+            raise TransformError(f"every sensor frame was skipped ({n} x): {reason}"
+                                 + (f"; {clocks[0]}" if clocks and self.cfg.replay.sensor_stamps == "header" else ""))
         damaged = {k: v for k, v in not_decoded.items() if any(k.endswith(" " + t) for t in sel.sensor_topics)}
         if damaged:
             reason, n = max(damaged.items(), key=lambda kv: kv[1])

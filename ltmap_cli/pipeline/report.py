@@ -35,6 +35,7 @@ class Report:
     ticks: int
     stopped_at: str | None  # where a damaged or cut-off log stopped being read
     window: dict | None  # --start / --end: the log times mapped (s from the log's first message), else None
+    header_stamp_offset_s: dict  # sensor, tf and odometry topic -> record time - stamp of its first message (s)
     interrupted_at_s: float | None  # Ctrl-C (Replay.interrupt): the log time mapped up to (s from its first message)
     peak_memory_mb: float
     map_memory_mb: float
