@@ -209,3 +209,35 @@ def test_info_takes_replays_config_and_set(tmp_path):
     assert "fixed frame: odom\n" in res.output
     bad = _run(path, "--set", "map.robot.base_frame")
     assert bad.exit_code == 2 and "expected KEY=VALUE" in bad.stderr
+
+
+@pytest.mark.parametrize("fmt", ["mcap-ros2", "ros1", "ros2-sqlite3"])
+def test_info_on_a_big_log_reads_its_first_part_and_counts_from_the_index(tmp_path, monkeypatch, fmt):
+    """A log over INFO_FULL_BYTES (hours of depth images: the whole pass would take minutes) is
+    read for its first INFO_HEAD_S of log time: counts, duration and rates come from its index and
+    equal the whole pass's, the tf tree's samples are those of the part read, and the output
+    says so; --full reads it all. (Thresholds lowered here: the log is 40 s of 10 Hz tf and 5 Hz
+    laser, read for 10 s.)"""
+    import ltmap_cli.commands.info as info_mod
+
+    msgs = [tf(S + i * S // 10, [("odom", "base_link", (0.01 * i, 0.0, 0.0))]) for i in range(401)]
+    msgs += [tf(S, [("base_link", "laser")], static=True)]
+    msgs += [scan("/scan", S + i * S // 5 + 1, [1.0, 2.0]) for i in range(200)]
+    msgs.sort(key=lambda m: m.log_time_ns)
+    log = write_log(tmp_path / ("big" + SUFFIX[fmt]), fmt, msgs)
+    whole = info_mod.gather([log])
+    monkeypatch.setattr(info_mod, "INFO_FULL_BYTES", 0)
+    monkeypatch.setattr(info_mod, "INFO_HEAD_S", 10.0)
+    head = info_mod.gather([log])
+    assert whole["read_s"] is None and head["read_s"] == 10.0
+    assert {n: t["count"] for n, t in head["topics"].items()} == {n: t["count"] for n, t in whole["topics"].items()} \
+        == {"/tf": 401, "/tf_static": 1, "/scan": 200}  # fmt: skip
+    assert (head["start_ns"], head["end_ns"]) == (whole["start_ns"], whole["end_ns"]) == (S, 41 * S)
+    assert "base_link  [tf, 401 samples]" in whole["tree"] and "base_link  [tf, 101 samples]" in head["tree"]
+    res = _run(log)
+    assert res.exit_code == 0, res.output
+    assert "read:      the first 10 s of log time (counts and times from the index; the tf tree, frames and " \
+        "warnings from that part): --full reads it all" in res.output  # fmt: skip
+    assert "/scan       sensor_msgs/msg/LaserScan      200     5.0 Hz  uses: laser, frame laser" in res.output, res.output
+    full = _run(log, "--full")
+    assert "read:" not in full.output and "base_link  [tf, 401 samples]" in full.output

@@ -4,7 +4,9 @@ One streaming pass over every message: counts, first/last log time per topic, th
 messages are decoded into a bounded TfBuffer; each edge shows how many samples the log has), and
 the first message of each sensor topic (its frame, for images the encoding, for LaserScans the
 check replay makes that the ranges match the angles). Nothing is kept per message, so memory does
-not grow with the log.
+not grow with the log. Logs of more than ``INFO_FULL_BYTES`` (hours of depth images: the whole
+pass would take minutes) are read for their first ``INFO_HEAD_S`` of log time, where replay
+makes its choices, with counts and times from their index; ``--full`` reads them whole.
 
 Exit status 2, after the listing, for a truncated log (unless --allow-truncated) and for a
 --fixed-frame that tf does not have, with the line replay would stop with.
@@ -29,6 +31,8 @@ from ..io.transforms import TfBuffer, choose_base_frame
 from . import sensor_options
 
 NS = 1_000_000_000
+INFO_FULL_BYTES = 1 << 30  # logs up to this size in all are read whole (a few seconds) ...
+INFO_HEAD_S = 30.0  # ... bigger ones for their first this many s of log time (where replay makes its choices)
 OFFSET_SHOWN_S = 1.0  # header stamps this far from record time (either way) are shown
 
 
@@ -49,6 +53,14 @@ def stamp_offset_lines(offsets_s: dict[str, float]) -> list[str]:
             side = "before" if off > 0 else "after"
             out.append(f"{topic}: header stamps are {_offset_text(off * NS)} {side} record time")
     return out
+
+
+def _size(path: Path) -> int:
+    """Bytes of a log file, or of the files in a ROS 2 bag folder."""
+    p = Path(path)
+    if p.is_dir():
+        return sum(f.stat().st_size for f in p.iterdir() if f.is_file())
+    return p.stat().st_size if p.exists() else 0
 
 
 def _rate(count: int, first: int | None, last: int | None) -> str:
@@ -78,11 +90,18 @@ def gather(
     fixed_frame: str = "",
     allow_truncated: bool = False,
     base_frame: str | None = None,
+    full: bool = False,
 ) -> dict:
     """Everything `info` shows, as a dict (also used by tests and ``--json``). Raises like the
-    readers. ``base_frame``: ``map.robot.base_frame`` (default: its default)."""
+    readers. ``base_frame``: ``map.robot.base_frame`` (default: its default). Logs of more than
+    ``INFO_FULL_BYTES`` in all are read for their first ``INFO_HEAD_S`` of log time only (what
+    replay decides its frames from), with counts and times from their index, unless ``full``."""
 
     with open_logs(paths, allow_truncated=True) as logs:
+        size = sum(_size(p) for p in paths)
+        head_ns = None if full or size <= INFO_FULL_BYTES or logs.start_ns is None else \
+            logs.start_ns + int(INFO_HEAD_S * NS)  # fmt: skip
+        read_to: int | None = None  # head_ns, when reading stopped there
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
         buf = TfBuffer(window_ns=10 * 10**9)
         for spec in tf_mounts:
@@ -110,7 +129,13 @@ def gather(
         wait_ns = int(ReplayConfig().tf_wait * NS)
         release_ns: int | None = None
         early: set[str] | None = None
-        for topic, t, decode, where in logs.raw(logs.topics):
+        stream = logs.raw(logs.topics)
+        for topic, t, decode, where in stream:
+            if head_ns is not None and t > head_ns:
+                read_to = head_ns
+                stream.close()
+                logs.finish()  # the damage met in the part read, if any
+                break
             if release_ns is None and topic in used_sensors:
                 release_ns = t + wait_ns
             if early is None and release_ns is not None and t > release_ns:
@@ -145,6 +170,7 @@ def gather(
                     offset.setdefault(topic, t - dec.stamp_ns(msg.header.stamp))
         stopped = logs.stats.stopped_at
         topics = logs.topics
+        log_start, log_end = logs.start_ns, logs.end_ns
         names = [str(p) for p in paths]
         formats = logs.formats
 
@@ -256,8 +282,8 @@ def gather(
             warnings.append(f"{topic}: its frames cannot be placed with that tf: {clause}")
     if stopped:
         warnings.append(f"log is truncated or corrupt: {stopped}")
-    starts = [v for v in first.values()]
-    ends = [v for v in last.values()]
+    starts = [v for v in first.values()] if read_to is None else [log_start] if log_start is not None else []
+    ends = [v for v in last.values()] if read_to is None else [log_end] if log_end is not None else []
     result = {
         "logs": names,
         "formats": formats,
@@ -266,9 +292,9 @@ def gather(
         "topics": {
             n: {
                 "type": topics[n].msgtype,
-                "count": counts.get(n, 0),
-                "first_ns": first.get(n),
-                "last_ns": last.get(n),
+                "count": counts.get(n, 0) if read_to is None else topics[n].count,
+                "first_ns": first.get(n) if read_to is None else (topics[n].first_ns or first.get(n)),
+                "last_ns": last.get(n) if read_to is None else topics[n].last_ns,
             }
             for n in sorted(topics)
         },
@@ -284,6 +310,7 @@ def gather(
         "skipped": dict(sel.skipped),
         "warnings": warnings,
         "stopped_at": stopped,
+        "read_s": None if read_to is None else INFO_HEAD_S,  # None: the whole log was read
     }
     if error is not None:
         result["error"] = error
@@ -308,6 +335,9 @@ def render(r: dict) -> str:
         lines.append("duration:  - (no messages)")
     total = sum(t["count"] for t in r["topics"].values())
     lines.append(f"messages:  {total}")
+    if r.get("read_s") is not None:
+        lines.append(f"read:      the first {r['read_s']:g} s of log time (counts and times from the index; the tf "
+                     f"tree, frames and warnings from that part): --full reads it all")  # fmt: skip
     lines.append("")
     width = max([len(n) for n in r["topics"]] + [5])
     twidth = max([len(t["type"]) for t in r["topics"].values()] + [4])
@@ -325,7 +355,7 @@ def render(r: dict) -> str:
             use = ""
         lines.append(
             f"{name:<{width}}  {t['type']:<{twidth}}  {t['count']:>7}  "
-            f"{_rate(t['count'], t['first_ns'], t['last_ns']):>9}  {use}".rstrip()
+            f"{_rate(t['count'], t['first_ns'] or r['start_ns'], t['last_ns'] or r['end_ns']):>9}  {use}".rstrip()
         )
     lines.append("")
     lines.append("tf tree:" if r["tree"] else "tf tree:   (no transforms)")
@@ -357,7 +387,8 @@ def render(r: dict) -> str:
     "--cloud-topic", "cloud_topics", multiple=True, help="PointCloud2 topic replay would use (repeatable)."
 )
 @click.option(
-    "--depth-topic", "depth_topics", multiple=True, help="Depth Image topic replay would use (repeatable)."
+    "--depth-topic", "depth_topics", multiple=True,
+    help="Depth image topic replay would use (an Image or a .../compressedDepth; repeatable)."
 )
 @click.option(
     "--tf",
@@ -374,9 +405,11 @@ def render(r: dict) -> str:
               help="A parameter as replay's --set, e.g. --set map.robot.base_frame=base_footprint.")
 @click.option("--allow-truncated", is_flag=True, help="Exit 0 on a truncated or corrupt log.")
 @click.option("--json", "as_json", is_flag=True, help="Print what info found as JSON (the same claims).")
+@click.option("--full", is_flag=True, help=f"Read every message of logs over {INFO_FULL_BYTES >> 30} GiB too (by "
+              f"default their first {INFO_HEAD_S:g} s of log time, counts from the index).")
 def info(
     logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, config_file, overrides,
-    allow_truncated, as_json,
+    allow_truncated, as_json, full,
 ) -> None:
     """Show what LOG(s) hold: topics, types, counts, duration, rates, the tf tree, which topics
     `ltmap replay` would use, the fixed and base frames it would use, and warnings for what it
@@ -388,7 +421,7 @@ def info(
     cfg.validate()
     rc = cfg.replay
     r = gather(list(logs), rc.scan_topics, rc.cloud_topics, rc.depth_topics, rc.tf, rc.fixed_frame, allow_truncated,
-               base_frame=cfg.map.robot.base_frame)  # fmt: skip
+               base_frame=cfg.map.robot.base_frame, full=full)  # fmt: skip
     if as_json:
 
         click.echo(json.dumps({k: (str(v) if k == "error" else v) for k, v in r.items()}, indent=2))

@@ -341,6 +341,11 @@ class LogSet:
         finally:  # closed early (``messages`` past its end_ns): the source records what it read
             it.close()
 
+    def finish(self) -> None:
+        """For a reader that stops early: record (``stats.stopped_at``) the damage met in what was
+        read, raising ``TruncatedLogError`` unless ``allow_truncated``."""
+        self._finish()
+
     def _finish(self) -> None:
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
         if not stops:
