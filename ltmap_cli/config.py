@@ -79,6 +79,7 @@ class ReplayConfig:
     max_message_mb: float = DEFAULT_MAX_MESSAGE_MB  # largest chunk / message read (uncompressed); more is refused
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp
     sensor_stamps: str = "header"  # header: place a sensor frame at its header stamp; log: at its record time
+    depth_frame_axes: str = "optical"  # a depth image's frame: optical (z forward, y down) or body (x forward, z up)
     tf_tolerance: float = 0.0  # s a stamp may lie outside an edge's samples (0: no extrapolation)
     static_wall_height: float = 2.5  # m: walls of a plain map_server YAML given to --static
     max_static_mb: float = DEFAULT_MAX_STATIC_MB  # memory S may take on the voxel lattice; more is refused
@@ -109,6 +110,8 @@ class Config:
     def validate(self) -> None:
         problems = _non_finite(self)
         problems += self.map.validate()
+        if self.replay.depth_frame_axes not in ("optical", "body"):
+            problems.append(f"replay.depth_frame_axes must be optical or body, got {shown(self.replay.depth_frame_axes)}")
         if self.replay.sensor_stamps not in ("header", "log"):
             problems.append(f"replay.sensor_stamps must be header or log, got {shown(self.replay.sensor_stamps)}")
         if self.replay.mode not in ("trinary", "scale", "raw"):

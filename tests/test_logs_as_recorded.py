@@ -628,3 +628,41 @@ def test_a_real_log_whose_frames_cannot_be_placed_is_named_in_a_pair(tmp_path):
     assert rep["frames_skipped_by_log"][str(PIONEER)] == 311
     (w,) = [w for w in warnings_of(r) if "contributed nothing" in w]
     assert w.startswith(f"log {PIONEER} contributed nothing to the map: all 311 of its sensor frames were skipped")
+
+
+def test_depth_images_in_a_body_frame_are_named_and_can_be_read_so(tmp_path):
+    """A simulated camera whose images carry its link frame (x forward, z up: Gazebo's default)
+    instead of its optical frame: read as optical, it faces straight up (a wall 3 m ahead becomes
+    a ceiling): replay warns, once, naming replay.depth_frame_axes=body; with it, the map is that
+    of the same images in a proper optical frame (tf camera_link -> camera_optical, REP 103)."""
+    from logfactory import camera_info, image, tf
+
+    S = 1_000_000_000
+
+    def log(frame: str, name: str) -> Path:
+        msgs = [tf(S // 2, [("base_link", "camera_link", (0.2, 0.0, 0.5))], static=True),
+                tf(S // 2, [("camera_link", "camera_optical", (0.0, 0.0, 0.0), (-0.5, 0.5, -0.5, 0.5))], static=True)]
+        for i in range(6):
+            t = S + i * S // 10
+            msgs.append(tf(t, [("odom", "base_link")]))
+            msgs.append(camera_info("/cam/depth/camera_info", t, width=40, height=30, fx=30, fy=30, cx=19.5, cy=14.5,
+                                    frame_id=frame))  # fmt: skip
+            msgs.append(image("/cam/depth/image_raw", t + 1, np.full((30, 40), 3000, np.uint16), frame_id=frame))
+        return write_log(tmp_path / name, "mcap-ros2", msgs)
+
+    body, optical = log("camera_link", "body.mcap"), log("camera_optical", "optical.mcap")
+    r = invoke("replay", body, "-o", tmp_path / "as_optical", "--no-plots")
+    assert r.exit_code == 0, r.stderr
+    warned = [ln for ln in warnings_of(r) if "faces straight up" in ln]
+    assert warned == ["depth images on /cam/depth/image_raw are in frame camera_link, which as an "
+                      "optical frame (z forward, x right, y down) faces straight up: is it the camera's body frame "
+                      "(x forward, z up; a Gazebo camera link) rather than its optical frame? --set "
+                      "replay.depth_frame_axes=body reads them so; if the camera does face up, ignore this"], r.stderr
+    up = o_keys(tmp_path / "as_optical")
+    assert len(up) and (up[:, 2] * 0.05 > 3.0).all()  # the wall became a ceiling 3 m over the camera
+    for args, out in (([body, "--set", "replay.depth_frame_axes=body"], "as_body"), ([optical], "ref")):
+        r = invoke("replay", *args, "-o", tmp_path / out, "--no-plots")
+        assert r.exit_code == 0 and "faces straight up" not in r.stderr, r.stderr
+    got, ref = o_keys(tmp_path / "as_body"), o_keys(tmp_path / "ref")
+    assert len(ref) > 100 and np.array_equal(got, ref)
+    assert (abs((ref[:, 0] + 0.5) * 0.05 - 3.2) < 0.06).all()  # the wall, 3 m ahead of the camera at x = 0.2

@@ -30,7 +30,7 @@ from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
-from ..io.frames import OdometrySample, TfSample
+from ..io.frames import DepthFrame, OdometrySample, TfSample
 from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
@@ -177,6 +177,7 @@ class Replay:
         self._window_start_ns = 0  # the first log time mapped (the log's first message, or replay.start_s after it)
         self._warm = False
         self._stop = threading.Event()
+        self._axes_checked: set[str] = set()  # depth topics whose frame's axes were looked at (_depth_axes)
 
     def interrupt(self) -> None:
         """Stop reading the log (from any thread; a signal handler's call): the frames read so
@@ -466,9 +467,31 @@ class Replay:
                     warm_depth(self.cfg.map, *key)
             if self.state.fixed_frame is None:
                 self.state.fixed_frame = self.scheduler.fixed_frame
-            self.executor.submit(event, self.caster.cast, event.frame, event.T, event.robot)
+            T = event.T
+            if isinstance(event.frame, (DepthFrame, RawDepthFrame)):
+                T = self._depth_axes(event.topic, event.frame.frame_id, T)
+            self.executor.submit(event, self.caster.cast, event.frame, T, event.robot)
             for job in self.executor.ready():
                 self._integrate(*job)
+
+    def _depth_axes(self, topic: str, frame_id: str, T: np.ndarray) -> np.ndarray:
+        """A depth image's pose: ``T`` (its frame in the fixed frame) for an optical frame (z
+        forward, x right, y down: REP 103's camera convention, what the images are read in), or
+        with ``replay.depth_frame_axes: body`` its frame taken as the camera's body frame (x
+        forward, y left, z up: a Gazebo camera link). Warns once per topic when an optical frame
+        faces straight up while its image's down is level: the signature of a body frame given
+        as the image's frame."""
+        if self.cfg.replay.depth_frame_axes == "body":
+            return T @ BODY_FROM_OPTICAL
+        if topic not in self._axes_checked:
+            self._axes_checked.add(topic)
+            if T[2, 2] > UPWARD_COS and abs(T[2, 1]) < LEVEL_SIN:
+                warnings.warn(LtmapWarning(
+                    f"depth images on {topic} are in frame {frame_id}, which as an optical frame (z forward, x right, "
+                    f"y down) faces straight up: is it the camera's body frame (x forward, z up; a Gazebo camera "
+                    f"link) rather than its optical frame? --set replay.depth_frame_axes=body reads them so; if "
+                    f"the camera does face up, ignore this"), stacklevel=2)  # fmt: skip
+        return T
 
     def _warm_up(self) -> None:
         """The kernels' first calls, before the first frame is cast: so a log whose frames are all
@@ -539,6 +562,12 @@ class Replay:
             self._done_s = min(max((log_ns - self._window_start_ns) / NS, 0.0), self.log_total_s)
         self.progress(Progress(self._done_s, self.log_total_s, sum(self.counts.used.values()), now - self._t_wall0,
                                phase))  # fmt: skip
+
+
+# the optical frame's axes in a camera body frame (x forward, y left, z up): z forward, x right, y down
+BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
+UPWARD_COS = 0.9  # an optical frame whose z axis is within 26 deg of straight up ...
+LEVEL_SIN = 0.45  # ... while its y axis (the image's down) is within 27 deg of level: a body frame?
 
 
 def _json_default(o):
