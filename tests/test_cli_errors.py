@@ -102,6 +102,12 @@ def test_the_same_recording_in_two_formats_is_warned_about(tmp_path):
     assert warn == [f"ltmap: warning: {n_tf} messages on /tf are in both {bag} and {conv} at the same log times: the "
                     f"same recording given twice (e.g. a .bag and its conversion)? Their frames were integrated "
                     f"twice; give one of them"]
+    # a window's end stops the reading early (8 s of log, read to 1 s + the 5 s tf trail): still said
+    long = room_messages(0.0, 8.0, False)
+    bag8, conv8 = write_log(tmp_path / "b.bag", "ros1", long), write_log(tmp_path / "b.mcap", "mcap-ros2", long)
+    r = _invoke(["replay", bag8, conv8, "-o", tmp_path / "o_win", "-q", "--no-plots", "--end", "1"])
+    assert r.exit_code == 0, r.output
+    assert any(" messages on /tf are in both " in ln for ln in r.stderr.splitlines()), r.stderr
     later = write_log(tmp_path / "b.mcap", "mcap-ros2", room_messages(10.0, 2.0, False))
     static = tf(1_000_000_000, [("base_link", "laser", MOUNT, (0, 0, 0, 1))], static=True)
     scans_only = write_log(tmp_path / "s.mcap", "mcap-ros2", [static] + [m for m in msgs if m.topic == "/scan"])

@@ -319,17 +319,23 @@ class LogSet:
                         twice[(topic, prev[1], k)] += 1
                     last[topic] = (t, k)
                 yield topic, t, decode, where, self.source_log[k]
+        except GeneratorExit:  # the reader stopped early (a time window's end): what it read was read twice
+            self._warn_twice(twice)
+            raise
         finally:
             for st in streams:
                 st.close()
+        self._warn_twice(twice)
+        self._finish()
+
+    def _warn_twice(self, twice: Counter) -> None:
         if twice:
             (topic, a, b), count = twice.most_common(1)[0]
             pa, pb = self.sources[a].path, self.sources[b].path
             warnings.warn(LtmapWarning(
                 f"{count} messages on {topic} are in both {pa} and {pb} at the same log times: the same "
                 f"recording given twice (e.g. a .bag and its conversion)? Their frames were integrated twice; "
-                f"give one of them"), stacklevel=2)  # fmt: skip
-        self._finish()
+                f"give one of them"), stacklevel=3)  # fmt: skip
 
     @staticmethod
     def _tagged(src: Source, wanted: set[str], k: int,
