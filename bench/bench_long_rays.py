@@ -346,19 +346,10 @@ def same_maps(a_out: str, b_out: str) -> dict:
     p_same = a["P"].shape == b["P"].shape and np.array_equal(a["P"], b["P"])
     out = {"differ": diff, "known_same": bool(known), "P_same": bool(p_same)}
     if "O_occupied" in a.files and "O_occupied" in b.files:
-        out["O_iou"] = iou(a["O_occupied"], b["O_occupied"])
-        out["LT_iou"] = iou(a["LT_keys"], b["LT_keys"])
-        out["P_iou"] = iou(p_cells(a), p_cells(b))
+        out["O_iou"] = bench_replay.iou(a["O_occupied"], b["O_occupied"])
+        out["LT_iou"] = bench_replay.iou(a["LT_keys"], b["LT_keys"])
+        out["P_iou"] = bench_replay.iou(p_cells(a), p_cells(b))
     return out
-
-
-def iou(a, b) -> float:
-    """Intersection over union of two arrays of keys (1.0 when both are empty)."""
-    import numpy as np
-
-    inter = len(np.intersect1d(a, b))
-    union = len(a) + len(b) - inter
-    return inter / union if union else 1.0
 
 
 def p_cells(state):

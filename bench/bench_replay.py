@@ -259,8 +259,22 @@ def _keys(arrays, prefix: str, channel: str, pred) -> set:
     return set(map(tuple, k.tolist()))
 
 
-def _iou(a: set, b: set) -> float:
-    return len(a & b) / len(a | b) if (a or b) else 1.0
+def iou(a, b) -> float:
+    """Intersection over union of two collections of keys (1.0 when both are empty): sets,
+    1-D arrays of packed keys, or (n, 3) arrays of voxel keys. The one IoU of the benches."""
+    import numpy as np
+
+    def as_set(k):
+        if isinstance(k, (set, frozenset)):
+            return k
+        k = np.asarray(k, dtype=np.int64)
+        if k.ndim == 2:
+            k = k.reshape(-1, 3) + (1 << 20)
+            k = (k[:, 0] << 42) | (k[:, 1] << 21) | k[:, 2]
+        return set(k.tolist())
+
+    sa, sb = as_set(a), as_set(b)
+    return len(sa & sb) / len(sa | sb) if (sa or sb) else 1.0
 
 
 def compare(ref: dict, other: dict) -> dict:
@@ -279,8 +293,8 @@ def compare(ref: dict, other: dict) -> dict:
             for k in a.files if k.startswith(("O_", "D_")) and k != "O_stamp")
         and a["O_stamp"].shape == b["O_stamp"].shape and np.array_equal(a["O_stamp"] > 0, b["O_stamp"] > 0)
     )  # fmt: skip
-    res["iou_O"] = _iou(_keys(a, "O_", "logodds", lambda v: v > 0), _keys(b, "O_", "logodds", lambda v: v > 0))
-    res["iou_LT"] = _iou(_keys(a, "D_", "lt", lambda v: v >= 0.65), _keys(b, "D_", "lt", lambda v: v >= 0.65))
+    res["iou_O"] = iou(_keys(a, "O_", "logodds", lambda v: v > 0), _keys(b, "O_", "logodds", lambda v: v > 0))
+    res["iou_LT"] = iou(_keys(a, "D_", "lt", lambda v: v >= 0.65), _keys(b, "D_", "lt", lambda v: v >= 0.65))
     pa, pb = a["P"], b["P"]
     if pa.shape == pb.shape and np.array_equal(a["P_origin"], b["P_origin"]):
         occ_a, occ_b = pa >= 65, pb >= 65
