@@ -270,13 +270,15 @@ def yaw_quat(yaw: float) -> tuple[float, float, float, float]:
 
 def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
               extra_types: dict[str, str] | None = None, chunk_size: int = 1024 * 1024,
-              compress: bool = True, ros1_chunk_size: int | None = None) -> Path:
+              compress: bool = True, ros1_chunk_size: int | None = None, ros2_compression: str | None = None) -> Path:
     """Write ``messages`` (in the given order) as a log of format ``fmt`` at ``path``.
 
     ``path`` is the bag file, the ROS 2 bag folder or the .mcap file; it must not exist.
     ``chunk_size`` (bytes) applies to standalone MCAP: small values give several chunks;
     ``compress=False`` writes ros2-profile MCAP chunks uncompressed (bytes to corrupt by hand);
-    ``ros1_chunk_size`` (bytes) the ROS 1 bag's chunks (rosbags' default: 1 MB).
+    ``ros1_chunk_size`` (bytes) the ROS 1 bag's chunks (rosbags' default: 1 MB);
+    ``ros2_compression`` ("file" or "message") a ROS 2 bag compressed with zstd as
+    ``ros2 bag record --compression-mode`` does.
     Returns ``path``.
     """
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
@@ -310,7 +312,12 @@ def write_log(path: str | Path, fmt: str, messages: Iterable[Msg],
         from rosbags.rosbag2 import Writer as Writer2
 
         plugin = StoragePlugin.SQLITE3 if fmt == "ros2-sqlite3" else StoragePlugin.MCAP
-        with Writer2(path, version=9, storage_plugin=plugin) as w:
+        w = Writer2(path, version=9, storage_plugin=plugin)
+        if ros2_compression is not None:
+            from rosbags.rosbag2.writer import CompressionFormat, CompressionMode
+
+            w.set_compression(CompressionMode[ros2_compression.upper()], CompressionFormat.ZSTD)
+        with w:
             conns = {}
             for m in messages:
                 if m.topic not in conns:

@@ -93,4 +93,28 @@ def decompress(compression: str, data: bytes, declared: int, limit: int, where: 
     return out if isinstance(out, bytes) else bytes(out)  # only the zstd stream collects a bytearray
 
 
-__all__ = ["DEFAULT_MAX_MESSAGE_MB", "TooLargeError", "DecompressError", "decompress", "too_large"]
+def decompress_zstd_message(data: bytes, limit: int, where: str) -> bytes:
+    """One message compressed by itself with zstd (rosbag2 ``--compression-mode message``):
+    ``decompress`` at the size its frame declares, or, when it declares none, read up to
+    ``limit`` (``TooLargeError`` beyond)."""
+    import zstandard
+
+    try:
+        size = zstandard.frame_content_size(data)
+    except zstandard.ZstdError as err:
+        raise DecompressError(f"its zstd data is corrupt ({first_line(err, 120)})") from None
+    if size >= 0:
+        return decompress("zstd", data, size, limit, where)
+    import io
+
+    try:
+        out = zstandard.ZstdDecompressor().stream_reader(io.BytesIO(data), read_across_frames=True).read(limit + 1)
+    except zstandard.ZstdError as err:
+        raise DecompressError(f"its zstd data is corrupt ({first_line(err, 120)})") from None
+    if len(out) > limit:
+        raise too_large(where, len(out), limit)
+    return out
+
+
+__all__ = ["DEFAULT_MAX_MESSAGE_MB", "TooLargeError", "DecompressError", "decompress", "decompress_zstd_message",
+           "too_large"]

@@ -29,7 +29,13 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from ..errors import InputError, LogReadError, first_line, shown
-from .bounded import DEFAULT_MAX_MESSAGE_MB, TooLargeError, decompress
+from .bounded import (
+    DEFAULT_MAX_MESSAGE_MB,
+    DecompressError,
+    TooLargeError,
+    decompress,
+    decompress_zstd_message,
+)
 from .skip import SkipBefore, unread_chunks
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
@@ -435,11 +441,15 @@ class Ros2BagSource(Source):
 
 
 class McapSource(Source):
-    def __init__(self, path: Path, fmt: str | None = None, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)):
+    def __init__(self, path: Path, fmt: str | None = None, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20),
+                 message_codec: str | None = None):
+        """``message_codec``: "zstd" when each message is compressed by itself (a ROS 2 bag
+        recorded with ``--compression-mode message``: its metadata.yaml says so)."""
         from mcap.reader import SeekingReader
 
         self.path = path
         self.max_bytes = max_bytes
+        self.message_codec = message_codec
         self.file = path.open("rb")
         self.size = path.stat().st_size
         self._decoders: dict[int, Callable[[bytes], Any] | None] = {}
@@ -507,6 +517,17 @@ class McapSource(Source):
         return self._decoders[ch.id]
 
     def _thunk(self, ch: Any, data: bytes) -> Callable[[], Any]:
+        if self.message_codec is not None:
+            try:
+                data = decompress_zstd_message(data, self.max_bytes, f"a message on {ch.topic} in {self.path}")
+            except DecompressError as err:
+                reason = str(err)
+
+                def damaged(_: Any) -> Any:
+                    raise ValueError(f"its bytes, compressed by rosbag2, cannot be decompressed: {reason}")
+
+                return Thunk(damaged, b"", ch.message_encoding)
+
         def decode(data: bytes) -> Any:
             dec = self._decoder(ch)
             if dec is None:
@@ -778,6 +799,29 @@ def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)
     raise InputError(f"{path} is not a robot log (it starts with {head[:8]!r}); {_KINDS}")
 
 
+def _message_compression(folder: Path) -> str | None:
+    """The compression of each message of a ROS 2 bag (``ros2 bag record --compression-mode
+    message``: each message's bytes compressed by themselves, in any storage), from its
+    metadata.yaml: "zstd", or None (none, or the whole file compressed: rosbags reads that)."""
+    from . import safe_yaml
+
+    check = safe_yaml.check_regular_file
+    meta = folder / "metadata.yaml"
+    try:
+        check(meta, "ROS 2 bag metadata.yaml", InputError, safe_yaml.MAX_YAML_BYTES)
+        info = (safe_yaml.loads(meta.read_text(errors="replace")) or {}).get("rosbag2_bagfile_information") or {}
+    except (OSError, ValueError, AttributeError, safe_yaml.yaml.YAMLError):
+        return None  # a bag that says nothing readable: its messages as they are
+    mode = str(info.get("compression_mode") or "").lower()
+    fmt = str(info.get("compression_format") or "").lower()
+    if mode != "message":
+        return None
+    if fmt != "zstd":
+        raise InputError(f"ROS 2 bag {folder}: its messages are compressed with {fmt or '(no format named)'!r}; ltmap "
+                         f"reads zstd, rosbag2's compressor: decompress it with `ros2 bag convert`")  # fmt: skip
+    return "zstd"
+
+
 def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
     from .safe_yaml import MAX_YAML_BYTES, check_regular_file
 
@@ -785,7 +829,8 @@ def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
     if mcaps:  # mcap storage: the mcap package streams it, and reads what a cut-off file still has
         for m in mcaps:
             check_regular_file(m, "log", InputError)
-        return [McapSource(m, fmt="ros2-mcap", max_bytes=max_bytes) for m in mcaps]
+        codec = _message_compression(path)
+        return [McapSource(m, fmt="ros2-mcap", max_bytes=max_bytes, message_codec=codec) for m in mcaps]
     if path.is_dir():  # rosbags reads metadata.yaml whole: a FIFO or a huge file would hang it
         check_regular_file(path / "metadata.yaml", "ROS 2 bag metadata.yaml", InputError, MAX_YAML_BYTES)
         for db in path.glob("*.db3"):
