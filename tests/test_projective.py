@@ -199,9 +199,9 @@ def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
         fills.update(n=0, skipped=0)
         m = _map()
         if how == "never":
-            m._publish_quiet = lambda q: None
+            m._publish_quiet = lambda q, box: None
         elif how == "stale":
-            def every_block(q, m=m):
+            def every_block(q, box, m=m):
                 m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
             m._publish_quiet = every_block
         for depth in seq:

@@ -36,7 +36,6 @@ from .grid import (
     band_k_range,
     find_block,
     get_or_add_block,
-    pack_blocks,
     voxel_offset,
 )
 from .projective import (
@@ -45,6 +44,7 @@ from .projective import (
     depth_projection_blocks,
     projective_fill,
     projective_keys,
+    quiet_keys_in_box,
     stale_skips,
 )
 from .raycast import (
@@ -648,6 +648,7 @@ class DepthProjection(NamedTuple):
 
     keys: np.ndarray  # (n,) int64, ascending
     masks: np.ndarray  # (n, 8) uint64
+    box: np.ndarray | None = None  # (6,) int64: the frame's voxel box (ends_box)
     skipped: np.ndarray | None = None  # (m,) int64: numbers in the box of blocks left as quiet
     fill: tuple | None = None  # projective_fill's arguments before ``blocks``
 
@@ -675,6 +676,7 @@ class LayeredMap:
     _quiet: _QuietBlocks | None = None
     _quiet_keys: np.ndarray = _NO_KEYS  # the quiet blocks as last published for the workers (_publish_quiet)
     _quiet_keys_version = -1
+    _quiet_keys_box: np.ndarray | None = None
 
     def __init__(self, cfg: MapConfig | None = None, static: StaticGrid | None = None):
         self.cfg = cfg or MapConfig()
@@ -827,9 +829,9 @@ class LayeredMap:
             self._quiet_keys if self.quiet_blocks else _NO_KEYS,
         )  # fmt: skip
         if not len(skipped):
-            return DepthProjection(keys, masks)
-        return DepthProjection(keys, masks, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
-                                                      float(cy), Tinv, box, self.resolution, band))  # fmt: skip
+            return DepthProjection(keys, masks, box)
+        return DepthProjection(keys, masks, box, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
+                                                           float(cy), Tinv, box, self.resolution, band))  # fmt: skip
 
     def projective_tail(self) -> float:
         """How far before its end a depth ray is walked in projective mode (m): the band and an
@@ -959,8 +961,8 @@ class LayeredMap:
                 self._apply(q, hits[:0], buf[:n], 1, counters)
         if self.quiet_blocks and q.ch_meta[0]:
             q.update(self, int(q.ch_meta[0]))
-        if self.quiet_blocks and q.version != self._quiet_keys_version:
-            self._publish_quiet(q)
+        if self.quiet_blocks and projection is not None and projection.box is not None:
+            self._publish_quiet(q, projection.box)
         return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
 
     def _fill_stale(self, q: _QuietBlocks, projection: DepthProjection) -> DepthProjection:
@@ -979,15 +981,18 @@ class LayeredMap:
             return projection
         keys = np.concatenate([projection.keys, keys[:n]])
         order = np.argsort(keys, kind="stable")
-        return DepthProjection(keys[order], np.concatenate([projection.masks, masks[:n]])[order])
+        return DepthProjection(keys[order], np.concatenate([projection.masks, masks[:n]])[order], projection.box)
 
-    def _publish_quiet(self, q: _QuietBlocks) -> None:
-        """The quiet O blocks' packed keys, sorted, for the workers' projection to skip
-        (``depth_projection``): a new array each time (a worker may hold the old one)."""
+    def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
+        """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,
+        of the quiet O blocks in this depth frame's box (the next frames' boxes are about the same:
+        a block outside it is only not skipped), when the flags or the box changed. A new array
+        each time (a worker may hold the old one); its cost follows the box, not the map."""
+        if q.version == self._quiet_keys_version and np.array_equal(box, self._quiet_keys_box):
+            return
         o = self.O
-        idx = np.nonzero(q.quiet[: o.n_blocks])[0]
-        self._quiet_keys = np.sort(pack_blocks(o.block_coords[idx]))
-        self._quiet_keys_version = q.version
+        self._quiet_keys = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.quiet)
+        self._quiet_keys_version, self._quiet_keys_box = q.version, box
 
     def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:
         """``apply_voxels_kernel`` from ``phase`` (0: hits then misses; 1: misses only), growing

@@ -473,6 +473,25 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
 
 
 @njit(cache=True, nogil=True)
+def quiet_keys_in_box(box, table_keys, table_vals, quiet):
+    """The packed keys of the quiet O blocks (``quiet`` by O block) among the blocks of the voxel
+    box ``box``, ascending (walked in x, y, z order: ``pack_block``'s order). Reads the map: the
+    thread that owns it; costs a lookup per block of the box, whatever the map's size."""
+    bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
+    bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
+    out = np.empty((bi1 - bi0 + 1) * (bj1 - bj0 + 1) * (bk1 - bk0 + 1), dtype=np.int64)
+    n = 0
+    for bi in range(bi0, bi1 + 1):
+        for bj in range(bj0, bj1 + 1):
+            for bk in range(bk0, bk1 + 1):
+                ob = find_block(table_keys, table_vals, bi, bj, bk)
+                if ob >= 0 and quiet[ob] != 0:
+                    out[n] = pack_block(bi, bj, bk)
+                    n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
 def stale_skips(skipped, box, table_keys, table_vals, quiet):
     """Of the box's blocks ``skipped`` as quiet by a worker, those that are not quiet now (or not
     in O: a map loaded since), in order, as a new array. Reads the map: the thread that owns it."""
