@@ -195,9 +195,10 @@ def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
     monkeypatch.setattr(layers_mod, "projective_fill", counting_fill)
     monkeypatch.setattr(LayeredMap, "depth_projection", counting_project)
     out, counts = {}, {}
-    for how in ("fresh", "never", "stale"):
+    for how in ("fresh", "never", "stale", "box"):
         fills.update(n=0, skipped=0)
         m = _map()
+        monkeypatch.setattr(layers_mod, "QUIET_LIST_WHOLE", 0 if how == "box" else 2)  # box: the frame's box only
         if how == "never":
             m._publish_quiet = lambda q, box: None
         elif how == "stale":
@@ -210,9 +211,9 @@ def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
         out[how] = [o.block_coords[: o.n_blocks], o.channel("logodds"), o.channel("stamp"),
                     d.block_coords[: d.n_blocks], d.channel("st"), d.channel("lt")]
         counts[how] = dict(fills)
-    for how in ("never", "stale"):
+    for how in ("never", "stale", "box"):
         assert all(np.array_equal(a, b) for a, b in zip(out[how], out["fresh"])), how
-    assert counts["fresh"]["skipped"] > 1000 and counts["never"]["skipped"] == 0
+    assert counts["fresh"]["skipped"] > 1000 and counts["box"]["skipped"] > 1000 and counts["never"]["skipped"] == 0
     assert counts["stale"]["n"] > 10 and counts["fresh"]["n"] == 0, counts  # (serial: the list is never stale)
 
 

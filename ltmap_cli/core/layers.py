@@ -36,6 +36,7 @@ from .grid import (
     band_k_range,
     find_block,
     get_or_add_block,
+    pack_blocks,
     voxel_offset,
 )
 from .projective import (
@@ -601,6 +602,7 @@ def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
 
 
 _QUIET_VERSIONS = itertools.count()
+QUIET_LIST_WHOLE = 2  # the workers get every quiet block while the map has at most this many times a frame's box
 _NO_KEYS = np.empty(0, dtype=np.int64)
 
 
@@ -985,13 +987,22 @@ class LayeredMap:
 
     def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
         """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,
-        of the quiet O blocks in this depth frame's box (the next frames' boxes are about the same:
-        a block outside it is only not skipped), when the flags or the box changed. A new array
-        each time (a worker may hold the old one); its cost follows the box, not the map."""
-        if q.version == self._quiet_keys_version and np.array_equal(box, self._quiet_keys_box):
-            return
+        of the quiet O blocks, when their flags changed. A new array each time (a worker may hold
+        the old one). All of them while the map has fewer blocks than twice this depth frame's box
+        (a sort of a few thousand keys); beyond, those of the box only (a lookup per block of the
+        box, whatever the map's size: a 100 m floor holds 10^5 blocks; the next frames' boxes are
+        about the same, and a block left out is only not skipped), also when the box moved."""
         o = self.O
-        self._quiet_keys = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.quiet)
+        b = box >> BLOCK_BITS
+        in_box = int(np.prod(b[3:] - b[:3] + 1))
+        whole = o.n_blocks <= QUIET_LIST_WHOLE * in_box
+        if q.version == self._quiet_keys_version and (whole or np.array_equal(box, self._quiet_keys_box)):
+            return
+        if whole:
+            idx = np.nonzero(q.quiet[: o.n_blocks])[0]
+            self._quiet_keys = np.sort(pack_blocks(o.block_coords[idx]))
+        else:
+            self._quiet_keys = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.quiet)
         self._quiet_keys_version, self._quiet_keys_box = q.version, box
 
     def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:
