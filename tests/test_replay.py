@@ -580,3 +580,23 @@ def test_an_interrupted_replay_writes_the_map_of_the_log_read_so_far(tmp_path):
     b, _ = read_state(tmp_path / "b" / "snapshots" / "state_final.npz")
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a), [k for k in a if not np.array_equal(a[k], b[k])]
     assert (tmp_path / "a" / "map.pgm").read_bytes() == (tmp_path / "b" / "map.pgm").read_bytes()
+
+
+def test_an_interrupt_before_any_frame_writes_nothing_and_ends_the_localization_pass(tmp_path):
+    """Ctrl-C during --localize's pre-pass (a pass over the whole log before mapping) ends the
+    pass too; with no frame mapped the run is RunInterrupted (exit status 130), nothing written."""
+    from ltmap_cli.config import Config
+    from ltmap_cli.errors import RunInterrupted
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
+    cfg = Config()
+    cfg.replay.plots = False
+    cfg.replay.localize = True
+    (tmp_path / "o").mkdir()
+    run = Replay(cfg, ReplayRequest([log], tmp_path / "o"))
+    run.interrupt()  # (as the first Ctrl-C would, before the pass began)
+    with pytest.raises(RunInterrupted, match="interrupted before any sensor frame"):
+        run.run()
+    assert run.localization is not None and run.localization.summary["scans"] == 0
+    assert RunInterrupted.exit_code == 130 and not (tmp_path / "o" / "report.json").exists()

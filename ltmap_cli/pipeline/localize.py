@@ -63,16 +63,17 @@ def _scan_points(item: ScanFrame, T: np.ndarray, lc) -> np.ndarray:
     return downsample(world[:, :2], lc.resolution)
 
 
-def localize_logs(logs, cfg, static_grid: GridMap | None, tf_mounts=()) -> LocalizationResult:
+def localize_logs(logs, cfg, static_grid: GridMap | None, tf_mounts=(), stop=None) -> LocalizationResult:
     """Run the pre-pass over ``logs`` (paths: read on their own, so the replay's counts stay its
     own). ``cfg``: the run's Config
     (``replay.localization``, topics, ``tf_wait``); ``static_grid``: the static
-    map S (any occupancy ``GridMap``) or None; ``tf_mounts``: the ``--tf`` specs."""
+    map S (any occupancy ``GridMap``) or None; ``tf_mounts``: the ``--tf`` specs; ``stop``: a
+    callable, true once the run is interrupted (Ctrl-C): the pass ends there."""
     with open_logs(logs, allow_truncated=cfg.replay.allow_truncated, max_message_mb=cfg.replay.max_message_mb) as opened:
-        return _run(opened, cfg, static_grid, tf_mounts)
+        return _run(opened, cfg, static_grid, tf_mounts, stop or (lambda: False))
 
 
-def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
+def _run(logs, cfg, static_grid, tf_mounts, stop) -> LocalizationResult:
     t_wall = time.perf_counter()
     lc = cfg.replay.localization
     frame = "map"
@@ -154,8 +155,10 @@ def _run(logs, cfg, static_grid, tf_mounts) -> LocalizationResult:
         res.log_times.append(log_ns)
 
     window = logs.window_ns(cfg.replay.start_s, cfg.replay.end_s)  # the replay's --start / --end
-    for _topic, log_ns, item in logs.messages(sel, fast=True, start_ns=window[0], end_ns=window[1]):
-        if state["failed"]:
+    stream = logs.messages(sel, fast=True, start_ns=window[0], end_ns=window[1])
+    for _topic, log_ns, item in stream:
+        if state["failed"] or stop():
+            stream.close()
             break
         if isinstance(item, (TfSample, OdometrySample)):
             if norm(item.parent) != frame:  # a recorded map -> odom is what we estimate

@@ -222,8 +222,8 @@ class Replay:
         if cfg.replay.localize:  # a pre-pass: map -> odom estimated from the scans (pipeline/localize.py)
             with self.timer("localize"):
                 self.localization = localize_logs(req.logs, cfg, static_layer.grid if static_layer else None,
-                                                  cfg.replay.tf)  # fmt: skip
-            if self.localization.child is None:  # cannot align: one warning, the recorded poses
+                                                  cfg.replay.tf, stop=self._stop.is_set)  # fmt: skip
+            if self.localization.child is None and not self._stop.is_set():  # cannot align: one warning, the recorded poses
                 warnings.warn(LtmapWarning(self.localization.message), stacklevel=2)
         req.out_dir.mkdir(parents=True, exist_ok=True)  # the CLI gives a fresh staging folder (OutputFolder)
         run = RunState(cfg, lmap, req.out_dir, req.shown_dir)
