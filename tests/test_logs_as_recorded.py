@@ -666,3 +666,33 @@ def test_depth_images_in_a_body_frame_are_named_and_can_be_read_so(tmp_path):
     got, ref = o_keys(tmp_path / "as_body"), o_keys(tmp_path / "ref")
     assert len(ref) > 100 and np.array_equal(got, ref)
     assert (abs((ref[:, 0] + 0.5) * 0.05 - 3.2) < 0.06).all()  # the wall, 3 m ahead of the camera at x = 0.2
+
+
+def test_tf_samples_tf2_refuses_are_ignored_not_fatal(tmp_path):
+    """A zeroed quaternion and a NaN translation among the robot's /tf samples (before: the run
+    failed, "sensor origin is not finite"): ignored as tf2 ignores them, counted in report.json
+    and named in a warning (and by info); the robot stands still, so the map is that of the log
+    without them."""
+    k = [0]
+
+    def zeroed(m: Msg) -> Msg:
+        if m.topic == "/tf":
+            k[0] += 1
+            tr = m.fields["transforms"][0]["transform"]
+            if k[0] == 5:
+                tr["rotation"] = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 0.0}
+            elif k[0] == 12:
+                tr["translation"] = {"x": float("nan"), "y": 0.0, "z": 0.0}
+        return m
+
+    log = room_log(tmp_path, "zeroed.mcap", change=zeroed)
+    r = invoke("replay", log, "-o", tmp_path / "o", "--no-plots")
+    assert r.exit_code == 0, r.stderr
+    assert "ltmap: warning: 2 samples of odom -> base_link ignored, as tf2 ignores them: a NaN or infinite value, " \
+        "or a quaternion that is not of unit length" in r.stderr, r.stderr  # fmt: skip
+    assert report(tmp_path / "o")["tf_samples_invalid"] == {"odom -> base_link": 2}
+    assert "  - 2 samples of odom -> base_link not used: a NaN or infinite value" in invoke("info", log).stdout
+    assert invoke("replay", room_log(tmp_path), "-o", tmp_path / "clean", "--no-plots").exit_code == 0
+    a, _ = read_state(tmp_path / "o" / "snapshots" / "state_final.npz")
+    b, _ = read_state(tmp_path / "clean" / "snapshots" / "state_final.npz")
+    assert all(np.array_equal(a[key], b[key]) for key in b)

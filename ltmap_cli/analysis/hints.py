@@ -11,6 +11,7 @@ command prints them as ``ltmap: warning:`` lines.
 - A static map that was resampled to the map's resolution.
 - A sensor topic none of whose frames was used, whose header stamps are on another clock than
   tf's (``clock_apart``): ``replay.sensor_stamps=log`` named.
+- tf or odometry samples ignored as tf2 ignores them (NaN, a quaternion not of unit length).
 """
 
 from __future__ import annotations
@@ -29,6 +30,10 @@ def replay_hints(report: dict, *, st_rise_s: float, resolution: float) -> list[s
                    f"placed at angle_min + i * angle_increment, as ROS does")
     out.extend(_idle_logs(report))
     out.extend(_clock_hints(report))
+    for edge, n in sorted((report.get("tf_samples_invalid") or {}).items()):
+        out.append(f"{n} samples of {edge} ignored, as tf2 ignores them: a NaN or infinite value, or a quaternion "
+                   f"that is not of unit length (a message left zeroed?); the edge's other samples were used")
+
     hint = _long_term_hint(report, st_rise_s)
     if hint:
         out.append(hint)

@@ -267,6 +267,9 @@ def gather(
             f"{n} samples of {edge} ignored: the edge also comes from a stronger source "
             f"(--tf mount, then /tf and /tf_static, then odometry)"
         )
+    for edge, n in sorted(buf.invalid.items()):
+        warnings.append(f"{n} samples of {edge} not used: a NaN or infinite value, or a quaternion that is not of "
+                        f"unit length (tf2 ignores them too)")
     for what, n in buf.unnamed.items():
         if what.startswith("nav_msgs/Odometry") and what.endswith("(empty child_frame_id)"):
             todo = ("it does not say which frame it moves, so ltmap cannot use it: publish the robot's "

@@ -120,6 +120,7 @@ def parse_mount(spec: str) -> TfSample:
 # which source owns an edge that several provide: the estimate of ``replay --localize``, a user
 # mount, then tf, then odometry
 _PRIORITY = {"localize": 4, "mount": 3, "tf": 2, "static": 2, "odom": 1}
+QUATERNION_TOLERANCE = 0.01  # tf2's QUATERNION_NORMALIZATION_TOLERANCE: |q|^2 this far from 1 is refused
 
 
 @dataclass
@@ -146,6 +147,9 @@ class TfBuffer:
         # samples with an empty frame name (an Odometry whose child_frame_id is ""), which tf2
         # refuses: "<source> parent -> child" (the empty name shown as such) -> samples
         self.unnamed: Counter[str] = Counter()
+        # samples tf2 refuses too: a NaN or infinite value, or a quaternion whose squared norm is
+        # off 1 by more than QUATERNION_TOLERANCE (a zeroed message): "parent -> child" -> samples
+        self.invalid: Counter[str] = Counter()
         # Caches, pure speed-ups (a lookup computes the same numbers with or without them): the
         # chain of parents per frame (dropped when an edge is made or removed) and, per edge, the
         # matrix of its last lookup with its stamp (dropped when the edge gets a sample). A sensor
@@ -164,6 +168,11 @@ class TfBuffer:
         if not parent or not child:
             kind = {"odom": "nav_msgs/Odometry", "tf": "/tf", "static": "/tf_static"}[source]
             self.unnamed[f"{kind} {parent or '(empty header.frame_id)'} -> {child or '(empty child_frame_id)'}"] += 1
+            return
+        q = sample.rotation_xyzw
+        if not all(math.isfinite(v) for v in (*sample.translation, *q)) or \
+                abs(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3] - 1.0) > QUATERNION_TOLERANCE:  # fmt: skip
+            self.invalid[f"{parent} -> {child}"] += 1
             return
         self._add(parent, child, sample.stamp_ns, sample.translation, sample.rotation_xyzw, source)
 

@@ -321,6 +321,7 @@ class Replay:
                     "start_s": round((start_ns - logs.start_ns) / NS, 3), "end_s": round((end_ns - logs.start_ns) / NS, 3)},
                 "interrupted_at_s": None if stopped_ns is None else round((end_ns - logs.start_ns) / NS, 3),
                 "header_stamp_offset_s": {t: round(v, 6) for t, v in sorted(offsets.items())},
+                "tf_samples_invalid": dict(self.scheduler.tf.invalid),
             }
         self._check_used(sel, inputs["messages_not_decoded"], offsets)
         return self._finish(run, inputs, static_info, resume_info)
