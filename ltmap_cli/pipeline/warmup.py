@@ -28,6 +28,7 @@ from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
+from ..core.projective import quiet_keys_in_box
 from ..core.sensors import transform_points
 
 CORE = Path(__file__).resolve().parent.parent / "core"
@@ -94,6 +95,8 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
         # skipped as quiet that are quiet no more: every block listed as quiet, none is
         m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
         m.integrate_depth(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
+        # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
+        quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().quiet)
 
 
 GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
