@@ -42,25 +42,18 @@ def rvl_decode(words, out):
     wi, word, left = 0, np.uint32(0), 0
     prev = 0
     while i < n:
-        zeros, wi, word, left = _vle(words, wi, word, left)
-        if zeros < 0:
-            return 1
-        if zeros > n - i:
-            return 2
-        for _ in range(zeros):
-            out[i] = 0
-            i += 1
-        nonzeros, wi, word, left = _vle(words, wi, word, left)
-        if nonzeros < 0:
-            return 1
-        if nonzeros > n - i:
-            return 2
-        for _ in range(nonzeros):
-            pos, wi, word, left = _vle(words, wi, word, left)
-            if pos < 0:
+        for zero_run in (True, False):  # a run of zeros, then one of non-zero pixels
+            run, wi, word, left = _vle(words, wi, word, left)
+            if run < 0:
                 return 1
-            delta = (pos >> 1) ^ -(pos & 1)
-            prev = (prev + delta) & 0xFFFF
-            out[i] = prev
-            i += 1
+            if run > n - i:
+                return 2
+            for _ in range(run):
+                if not zero_run:
+                    pos, wi, word, left = _vle(words, wi, word, left)
+                    if pos < 0:
+                        return 1
+                    prev = (prev + ((pos >> 1) ^ -(pos & 1))) & 0xFFFF  # the zigzag delta
+                out[i] = 0 if zero_run else prev
+                i += 1
     return 0
