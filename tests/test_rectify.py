@@ -128,3 +128,19 @@ def test_info_says_the_lens_is_rectified(tmp_path):
         in r.stdout, r.stdout  # fmt: skip
     r = CliRunner().invoke(cli, ["replay", str(log), "-o", str(tmp_path / "o"), "-q", "--no-plots"])
     assert r.exit_code == 2 and "has distortion model 'fov' with non-zero coefficients" in r.stderr, r.output
+
+
+def test_the_map_in_row_blocks_and_a_hostile_coefficient_list(monkeypatch):
+    """The resampling map computed a few rows at a time (its temporaries bounded) is the map
+    computed at once; a CameraInfo with a million coefficients keeps the first 14."""
+    dist = rectify.Distortion("plumb_bob", (K1, K2, 0.001, -0.002, 0.0))
+    whole = rectify.source_index(W, H, F, F, CX, CY, dist, "here").copy()
+    rectify._MAPS.clear()
+    monkeypatch.setattr(rectify, "MAP_ROWS_PIXELS", 3 * W + 7)  # 3 rows a block, the last one short
+    assert np.array_equal(rectify.source_index(W, H, F, F, CX, CY, dist, "here"), whole)
+
+    class Info:
+        d = np.full(1_000_000, 0.5)
+        distortion_model = "plumb_bob"
+
+    assert len(rectify.distortion(Info()).d) == rectify.MAX_COEFFS

@@ -23,6 +23,8 @@ import numpy as np
 from ..errors import LogReadError
 
 MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+MAX_COEFFS = 14  # OpenCV's most (rational + thin prism + tilt): the coefficients read from a CameraInfo
+MAP_ROWS_PIXELS = 1 << 20  # the map is computed this many pixels at a time (its float64 temporaries bounded)
 
 
 @dataclass(frozen=True)
@@ -36,7 +38,8 @@ def distortion(info) -> Distortion | None:
     d = getattr(info, "d", None)
     if d is None:
         d = getattr(info, "D", None)
-    coeffs = tuple(float(x) for x in (np.asarray(d, dtype=np.float64).reshape(-1) if d is not None else ()))
+    # (at most the first MAX_COEFFS: no model uses more, and a hostile message may hold millions)
+    coeffs = tuple(float(x) for x in (np.asarray(d, dtype=np.float64).reshape(-1)[:MAX_COEFFS] if d is not None else ()))
     if not any(c != 0.0 for c in coeffs):
         return None
     return Distortion(str(getattr(info, "distortion_model", "") or "plumb_bob"), coeffs)
@@ -75,13 +78,17 @@ def source_index(w: int, h: int, fx: float, fy: float, cx: float, cy: float, dis
     key = (w, h, fx, fy, cx, cy, dist)
     idx = _MAPS.get(key)
     if idx is None:
-        u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
-        xd, yd = distort((u - cx) / fx, (v - cy) / fy, dist, where)
-        us = np.floor(fx * xd + cx + 0.5)
-        vs = np.floor(fy * yd + cy + 0.5)
-        inside = (us >= 0) & (us < w) & (vs >= 0) & (vs < h) & np.isfinite(us) & np.isfinite(vs)
         idx = np.full(h * w, -1, dtype=np.int64)
-        idx[inside.ravel()] = (vs * w + us)[inside].astype(np.int64)
+        step = max(1, MAP_ROWS_PIXELS // max(w, 1))
+        for v0 in range(0, h, step):  # rows at a time: the float64 temporaries stay bounded
+            u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(v0, min(v0 + step, h), dtype=np.float64))
+            xd, yd = distort((u - cx) / fx, (v - cy) / fy, dist, where)
+            us = np.floor(fx * xd + cx + 0.5)
+            vs = np.floor(fy * yd + cy + 0.5)
+            inside = (us >= 0) & (us < w) & (vs >= 0) & (vs < h) & np.isfinite(us) & np.isfinite(vs)
+            part = np.full(u.shape, -1, dtype=np.int64)
+            part[inside] = (vs * w + us)[inside].astype(np.int64)
+            idx[v0 * w : v0 * w + part.size] = part.ravel()
         if len(_MAPS) >= _MAX_MAPS:
             _MAPS.pop(next(iter(_MAPS)))
         _MAPS[key] = idx
