@@ -277,3 +277,9 @@ def test_info_says_what_replay_does_with_compressed_depth(tmp_path):
         r.stdout  # fmt: skip
     r, _ = _replay(log, tmp_path / "o")
     _one_line(r, "JPEG loses depth", "message index 0")
+
+
+def test_a_format_string_of_a_megabyte_gives_a_short_line():
+    with pytest.raises(LogReadError) as e:
+        cd.decode(b"\0" * 40, "x" * 1_000_000, (32, 24), "on /x")
+    assert len(str(e.value)) < 400 and "not a depth image" in str(e.value)

@@ -30,6 +30,7 @@ CONFIG_HEADER = 12  # bytes of compressed_depth_image_transport's ConfigHeader b
 PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 MAX_PIXELS = 1 << 24  # pixels of a compressed depth image whose CameraInfo gives no size (4096 x 4096)
 DEPTH_ENCODINGS = ("16UC1", "mono16", "32FC1")
+MAX_FORMAT_CHARS = 80  # of a message's format string, read and shown
 
 
 class DamagedPayload(ValueError):
@@ -44,7 +45,10 @@ def decode(data: bytes, fmt: str, size: tuple[int, int] | None, where: str) -> n
     ``DamagedPayload`` for pixels that cannot be decoded."""
     if not isinstance(data, bytes):
         data = bytes(data)  # (a deserializer's uint8 array)
-    encoding, _, rest = str(fmt).partition(";")
+    fmt = str(fmt)
+    if len(fmt) > MAX_FORMAT_CHARS:  # (a format string is a few words: one line stays one line)
+        fmt = fmt[:MAX_FORMAT_CHARS] + "..."
+    encoding, _, rest = fmt.partition(";")
     encoding, rest = encoding.strip(), rest.strip()
     if encoding not in DEPTH_ENCODINGS:
         raise LogReadError(f"compressed image {where} has format {fmt!r}: not a depth image (16UC1, mono16 or "
