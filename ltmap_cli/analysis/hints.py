@@ -16,6 +16,8 @@ command prints them as ``ltmap: warning:`` lines.
 
 from __future__ import annotations
 
+from ..errors import bounded
+
 CLOCK_APART_S = 10.0  # a sensor's header stamps this far from tf's (relative to record time): another clock
 LT_NEARLY_EMPTY = 0.05  # long-term voxels below this fraction of the voxels seen occupied: "nearly empty"
 ST_RISE_HINT_S = 5.0  # the value a hint proposes for map.layers.st_rise_s on a short log
@@ -30,9 +32,11 @@ def replay_hints(report: dict, *, st_rise_s: float, resolution: float) -> list[s
                    f"placed at angle_min + i * angle_increment, as ROS does")
     out.extend(_idle_logs(report))
     out.extend(_clock_hints(report))
-    for edge, n in sorted((report.get("tf_samples_invalid") or {}).items()):
-        out.append(f"{n} samples of {edge} ignored, as tf2 ignores them: a NaN or infinite value, or a quaternion "
-                   f"that is not of unit length (a message left zeroed?); the edge's other samples were used")
+    invalid = report.get("tf_samples_invalid") or {}
+    if invalid:  # (one line, however many edges: a hostile log may name thousands)
+        edges = bounded(f"{n} of {edge[:120]}" for edge, n in sorted(invalid.items(), key=lambda kv: -kv[1]))
+        out.append(f"tf samples ignored, as tf2 ignores them (a NaN or infinite value, or a quaternion that is not "
+                   f"of unit length: a message left zeroed?): {edges}; the edges' other samples were used")
 
     hint = _long_term_hint(report, st_rise_s)
     if hint:
