@@ -457,6 +457,7 @@ def test_the_realsense_recording_replays_in_its_depth_frame_and_its_voxels_lie_o
     out = tmp_path / "o"
     r = invoke("replay", REALSENSE, "--fixed-frame", "0", "-o", out)
     assert r.exit_code == 0, r.output
+    assert "faces straight up" not in r.stderr  # (mapped in its own frame: no up to face)
     rep = report(out)
     assert rep["frames_used"] == {"/device_0/sensor_0/Depth_0/image/data": 2} and rep["fixed_frame"] == "0"
     keys = o_keys(out)

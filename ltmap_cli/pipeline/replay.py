@@ -486,7 +486,8 @@ class Replay:
             return T @ BODY_FROM_OPTICAL
         if topic not in self._axes_checked:
             self._axes_checked.add(topic)
-            if T[2, 2] > UPWARD_COS and abs(T[2, 1]) < LEVEL_SIN:
+            # (the fixed frame's z is up: not so when the map is made in the camera's own frame)
+            if T[2, 2] > UPWARD_COS and abs(T[2, 1]) < LEVEL_SIN and frame_id != self.state.fixed_frame:
                 warnings.warn(LtmapWarning(
                     f"depth images on {topic} are in frame {frame_id}, which as an optical frame (z forward, x right, "
                     f"y down) faces straight up: is it the camera's body frame (x forward, z up; a Gazebo camera "
