@@ -615,3 +615,45 @@ def test_which_chunks_before_the_start_are_left_unread():
     got = unread_chunks(early, lambda c: c[0], lambda c: c[1], frozenset({"/tf_static"}), frozenset({"/info"}))
     assert got == {1, 2, 4}  # kept: 0 (/tf_static), 3 (the last holding /info, by end time)
     assert unread_chunks(early, lambda c: c[0], lambda c: c[1], frozenset(), frozenset()) == {0, 1, 2, 3, 4}
+
+
+def test_an_mcap_cut_before_its_summary_is_counted_from_its_message_indexes(tmp_path, monkeypatch):
+    """A recording killed before it wrote its summary: the counts, first and last times and the
+    place reading stops come from the chunks' headers and message index records, as reading
+    every chunk gives them (40 cuts at random places, the summary's included), and only the
+    chunks that define channels or whose index was cut off are decompressed."""
+    import random
+    import re
+
+    import ltmap_cli.io.sources as src
+
+    msgs = [scan("/scan", S + i * S // 10, [float(i)]) for i in range(60)]
+    msgs += [tf(S + i * S // 5, [("odom", "base_link")]) for i in range(30)]
+    msgs.sort(key=lambda m: m.log_time_ns)
+    data = _log(tmp_path, "mcap-ros2", msgs, chunk_size=512).read_bytes()
+    rng = random.Random(5)
+    decompressed = []
+    real = src.decompress
+    monkeypatch.setattr(src, "decompress", lambda *a: decompressed.append(1) or real(*a))
+
+    def summary(p: Path, scan_indexes: bool):
+        if not scan_indexes:
+            monkeypatch.setattr(src.McapSource, "_scan_indexes", lambda self: None)
+        decompressed.clear()
+        s = src.McapSource(p)
+        monkeypatch.undo()
+        monkeypatch.setattr(src, "decompress", lambda *a: decompressed.append(1) or real(*a))
+        stop = re.search(r"after (\d+) messages", s.stopped_at or "")
+        return ({k: (v.count, v.first_ns, v.last_ns) for k, v in s.topics.items()}, s.start_ns, s.end_ns,
+                stop and stop.group(1)), len(decompressed)  # fmt: skip
+
+    totals = [0, 0]
+    for k in range(40):
+        cut = tmp_path / f"cut{k}.mcap"
+        cut.write_bytes(data[: rng.randrange(len(data) // 4, len(data))])
+        fast, n_fast = summary(cut, True)
+        whole, n_whole = summary(cut, False)
+        assert fast == whole, cut
+        assert n_fast <= 3, n_fast  # the chunks defining the two channels, and the one whose index was cut
+        totals[0], totals[1] = totals[0] + n_fast, totals[1] + n_whole
+    assert totals[1] > 5 * totals[0], totals  # every chunk, against a few

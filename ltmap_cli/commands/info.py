@@ -169,6 +169,8 @@ def gather(
                     sensor_where[topic] = where
                     offset.setdefault(topic, t - dec.stamp_ns(msg.header.stamp))
         stopped = logs.stats.stopped_at
+        if read_to is not None and not stopped:  # the part read is whole; the file's end may be known to be cut
+            stopped = "; ".join(s.end_stop for s in logs.sources if s.end_stop) or None
         topics = logs.topics
         log_start, log_end = logs.start_ns, logs.end_ns
         names = [str(p) for p in paths]

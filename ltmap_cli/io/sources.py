@@ -92,6 +92,7 @@ class Source:
     start_ns: int | None
     end_ns: int | None
     stopped_at: str | None = None
+    end_stop: str | None = None  # where the file's end stops reading, when known before reading it (an unindexed MCAP)
 
     def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:  # pragma: no cover
         raise NotImplementedError
@@ -480,11 +481,22 @@ class McapSource(Source):
             first: dict[str, int] = {}
             last: dict[str, int] = {}
             counts: dict[str, int] = {}
-            for item in self._stream(None):  # noqa: B007 - counting
-                counts[item.topic] = counts.get(item.topic, 0) + 1
-                first.setdefault(item.topic, item.log_time_ns)
-                last[item.topic] = item.log_time_ns
-            self.stopped_at = self._stop
+            try:
+                scanned = self._scan_indexes()
+            except TooLargeError:
+                raise
+            except Exception:  # noqa: BLE001 - records the scan cannot parse: every chunk is read
+                scanned = None
+            if scanned is not None:  # counts from the chunks' message index records (no decompressing)
+                counts, first, last, self.stopped_at = scanned
+            else:
+                self.schemas, self.channels = {}, {}
+                for item in self._stream(None):  # noqa: B007 - counting
+                    counts[item.topic] = counts.get(item.topic, 0) + 1
+                    first.setdefault(item.topic, item.log_time_ns)
+                    last[item.topic] = item.log_time_ns
+                self.stopped_at = self._stop
+            self.end_stop = self.stopped_at  # where the file ends, known before reading (iter() resets stopped_at)
             for ch in self.channels.values():
                 _merge_topic(self.topics, TopicInfo(ch.topic, self._type(ch), counts.get(ch.topic, 0),
                                                     first.get(ch.topic), last.get(ch.topic)))
@@ -492,6 +504,149 @@ class McapSource(Source):
             self.end_ns = max(last.values()) if last else None
         profiles = {"ros1" if ch.message_encoding == "ros1" else "ros2" for ch in self.channels.values()}
         self.fmt = fmt or ("mcap-ros1" if profiles == {"ros1"} else "mcap-ros2")
+
+    def _scan_indexes(self) -> tuple[dict, dict, dict, str | None] | None:
+        """(counts, first, last log time per topic, where reading would stop) of an MCAP without
+        a summary (a recording killed before it wrote one), from the data section's chunk headers
+        and the message index records after each chunk, skipping the chunks' bytes: a 2-minute
+        1.4 GB log of depth images is counted in 0.1 s instead of 4.3 s of decompressing. A
+        chunk is decompressed only to learn channels its index names that are not known yet
+        (writers put the Schema and Channel records in the chunk that first uses them), or to
+        count the messages of the last whole chunk when the file is cut in its index records.
+        None when the file does not lend itself to it (messages outside chunks, a chunk without
+        index records in the middle of the file, a channel no record defines): then every chunk
+        is read (``_stream``). Damage inside a chunk's compressed bytes is found when the chunks
+        are read."""
+        import io
+
+        import numpy as np
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Channel, Schema
+
+        counts: dict[str, int] = {}
+        first: dict[str, tuple[int, int, int]] = {}  # topic -> (chunk, offset in it, log time): file order
+        last: dict[str, tuple[int, int, int]] = {}
+        total = [0]
+
+        def commit(chunk_at: int, per_channel: dict[int, np.ndarray]) -> None:
+            for cid, entries in per_channel.items():  # entries: (log time, offset) rows
+                if not len(entries):
+                    continue
+                topic = self.channels[cid].topic
+                counts[topic] = counts.get(topic, 0) + len(entries)
+                total[0] += len(entries)
+                lo, hi = int(entries[:, 1].argmin()), int(entries[:, 1].argmax())
+                key = (chunk_at, int(entries[lo, 1]), int(entries[lo, 0]))
+                if topic not in first or key[:2] < first[topic][:2]:
+                    first[topic] = key
+                key = (chunk_at, int(entries[hi, 1]), int(entries[hi, 0]))
+                if topic not in last or key[:2] > last[topic][:2]:
+                    last[topic] = key
+
+        stop = None
+        chunk_at: int | None = None  # the last chunk's offset ...
+        pending: dict[int, np.ndarray] | None = None  # ... and its index records so far (None: none yet)
+        with self.path.open("rb") as f:
+            if f.read(8) != MCAP_MAGIC:
+                return None
+            while True:
+                at = f.tell()
+                head = f.read(9)
+                op = head[0] if head else 0x0F
+                length = struct.unpack_from("<Q", head, 1)[0] if len(head) == 9 else 0
+                cut = 0 < len(head) < 9 or at + 9 + length > self.size
+                if (cut or op != 0x07) and chunk_at is not None:  # the last chunk's index records end here
+                    if pending is None and head and not cut and op != 0x0F:
+                        return None  # a chunk without index records in the middle of the file
+                    if pending is None or (cut and (op == 0x07 or len(head) < 9)):  # none, or cut off:
+                        pending = self._count_chunk(chunk_at)  # the chunk (whole) is read
+                        if pending is None:
+                            return None
+                    commit(chunk_at, pending)
+                    chunk_at, pending = None, None
+                if cut:
+                    stop = _stop_text(self.path, total[0], at, EOFError())
+                    break
+                if not head:  # (a file without its footer: reading stops there too)
+                    stop = _stop_text(self.path, total[0], at, EOFError())
+                    break
+                if op == 0x02:  # the Footer, then the closing magic: the file's end
+                    f.seek(length, 1)
+                    if f.read(8) != MCAP_MAGIC:
+                        stop = _stop_text(self.path, total[0], f.tell(), EOFError())
+                    break
+                if op == 0x06:  # Chunk: its bytes are skipped
+                    chunk_at, pending = at, None
+                    f.seek(length, 1)
+                elif op == 0x07:  # MessageIndex: channel id, (log time, offset) pairs
+                    body = f.read(length)
+                    if chunk_at is None or len(body) < 6:
+                        return None
+                    cid, size = struct.unpack_from("<HI", body, 0)
+                    if size % 16 or 6 + size > len(body):
+                        return None
+                    if cid not in self.channels and not self._learn_channels(chunk_at, cid):
+                        return None
+                    pending = {} if pending is None else pending
+                    pending[cid] = np.frombuffer(body, dtype="<u8", count=size // 8, offset=6).reshape(-1, 2)
+                elif op in (0x03, 0x04):  # Schema, Channel outside chunks
+                    rec = (Schema if op == 0x03 else Channel).read(ReadDataStream(io.BytesIO(f.read(length))))
+                    (self.schemas if op == 0x03 else self.channels)[rec.id] = rec
+                elif op == 0x05:  # a Message outside any chunk
+                    return None
+                else:  # Header, Attachment, Metadata, DataEnd, the summary's records: skipped
+                    f.seek(length, 1)
+        return (counts, {t: v[2] for t, v in first.items()}, {t: v[2] for t, v in last.items()}, stop)
+
+    def _count_chunk(self, chunk_at: int):
+        """{channel: (log time, offset) rows} of the messages of the chunk at ``chunk_at``, read
+        whole (and its Schema and Channel records learnt); None when it cannot be read."""
+        import numpy as np
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Channel, Chunk, Message, Schema
+
+        out: dict[int, list] = {}
+        try:
+            with self.path.open("rb") as f:
+                f.seek(chunk_at + 1)
+                length = struct.unpack("<Q", f.read(8))[0]
+                chunk = Chunk.read(ReadDataStream(_Bounded(f, length)))
+                for k, record in enumerate(self._chunk_records(chunk, chunk_at)):
+                    if isinstance(record, Schema):
+                        self.schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        self.channels[record.id] = record
+                    elif isinstance(record, Message):
+                        if record.channel_id not in self.channels:
+                            return None
+                        out.setdefault(record.channel_id, []).append((record.log_time, k))
+        except TooLargeError:
+            raise
+        except Exception:  # noqa: BLE001 - a damaged chunk: every chunk is read instead
+            return None
+        return {cid: np.array(rows, dtype=np.uint64).reshape(-1, 2) for cid, rows in out.items()}
+
+    def _learn_channels(self, chunk_at: int, cid: int) -> bool:
+        """Read the Schema and Channel records of the chunk at ``chunk_at``; whether channel
+        ``cid`` is then known."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Channel, Chunk, Schema
+
+        try:
+            with self.path.open("rb") as f:
+                f.seek(chunk_at + 1)
+                length = struct.unpack("<Q", f.read(8))[0]
+                chunk = Chunk.read(ReadDataStream(_Bounded(f, length)))
+                for record in self._chunk_records(chunk, chunk_at):
+                    if isinstance(record, Schema):
+                        self.schemas[record.id] = record
+                    elif isinstance(record, Channel):
+                        self.channels[record.id] = record
+        except TooLargeError:
+            raise
+        except Exception:  # noqa: BLE001 - a damaged chunk: every chunk is read instead
+            return False
+        return cid in self.channels
 
     def _type(self, ch: Any) -> str:
         schema = self.schemas.get(ch.schema_id)
