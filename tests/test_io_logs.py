@@ -657,3 +657,64 @@ def test_an_mcap_cut_before_its_summary_is_counted_from_its_message_indexes(tmp_
         assert n_fast <= 3, n_fast  # the chunks defining the two channels, and the one whose index was cut
         totals[0], totals[1] = totals[0] + n_fast, totals[1] + n_whole
     assert totals[1] > 5 * totals[0], totals  # every chunk, against a few
+
+
+def test_time_window_in_an_mcap_cut_before_its_summary_decompresses_only_what_it_needs(tmp_path, monkeypatch):
+    """The same window in an MCAP without its summary (cut at its data section's end): the chunk
+    table of the message index scan lets the chunks before the lead go undecompressed (but those
+    holding /tf_static and the last with the CameraInfo), and gives the frames and message
+    indexes of reading every chunk."""
+    from ltmap_cli.io import sources
+    from ltmap_cli.io.logs import WINDOW_LEAD_S
+
+    whole = _log(tmp_path, "mcap-ros2", _window_log(), chunk_size=4000)
+    from mcap.reader import make_reader
+
+    with whole.open("rb") as f:
+        info = make_reader(f).get_summary()
+    end = max(ci.chunk_start_offset + ci.chunk_length for ci in info.chunk_indexes)
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: end + 2000])  # (the last chunk's index records, and no summary)
+    read_at = []
+    real_read = sources.McapSource._chunk_records
+
+    def spy(self, chunk, pos):
+        read_at.append(chunk.message_start_time)
+        return real_read(self, chunk, pos)
+
+    monkeypatch.setattr(sources.McapSource, "_chunk_records", spy)
+    real_iter = sources.McapSource.iter
+    indexes: list = []
+
+    def iter_spy(self, topics, skip=None):  # the message indexes (per topic, in the whole log) read
+        for m in real_iter(self, topics, skip):
+            indexes.append((m.topic, m.log_time_ns, m.index))
+            yield m
+
+    monkeypatch.setattr(sources.McapSource, "iter", iter_spy)
+
+    def window(path, scan: bool):
+        if not scan:
+            monkeypatch.setattr(sources.McapSource, "_scan_indexes", lambda self: None)
+        read_at.clear()
+        indexes.clear()
+        with open_logs(path, allow_truncated=True) as logs:
+            assert not logs.sources[0].indexed
+            t0 = logs.start_ns
+            start = t0 + 10 * S + S // 20
+            got = [(t, lt, type(fr).__name__, getattr(fr, "stamp_ns", None)) for t, lt, fr in
+                   logs.messages(start_ns=start, end_ns=start + S)]  # fmt: skip
+        monkeypatch.setattr(sources.McapSource, "_scan_indexes", real_scan)
+        kept = {(t, lt): i for t, lt, i in indexes if lt >= start - WINDOW_LEAD_S * S}
+        return (got, kept), list(read_at), start, t0
+
+    real_scan = sources.McapSource._scan_indexes
+    fast, read_fast, start, t0 = window(cut, True)
+    slow, read_slow, _, _ = window(cut, False)
+    assert fast == slow and len([x for x in fast[0] if x[2] == "DepthFrame"]) == 10
+    early = [t for t in read_fast if t < start - WINDOW_LEAD_S * S]
+    # the first chunk twice (its channels learnt when the file is opened; read for /tf_static and
+    # the CameraInfo) and the chunk that spans the lead
+    assert len(early) <= 3 and len(read_fast) < len(read_slow) - 10, (early, len(read_fast), len(read_slow))
+    assert min(read_fast) == t0  # the first chunk: /tf_static and the CameraInfo

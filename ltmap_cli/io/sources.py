@@ -528,7 +528,13 @@ class McapSource(Source):
         last: dict[str, tuple[int, int, int]] = {}
         total = [0]
 
+        table: list[tuple[int, int, dict[int, int]]] = []  # per chunk: (end offset, last log time, messages by channel)
+
         def commit(chunk_at: int, per_channel: dict[int, np.ndarray]) -> None:
+            if per_channel:
+                times = [int(e[:, 0].max()) for e in per_channel.values() if len(e)]
+                table.append((chunk_ends[chunk_at], max(times) if times else 0,
+                              {cid: len(e) for cid, e in per_channel.items()}))  # fmt: skip
             for cid, entries in per_channel.items():  # entries: (log time, offset) rows
                 if not len(entries):
                     continue
@@ -544,6 +550,7 @@ class McapSource(Source):
                     last[topic] = key
 
         stop = None
+        chunk_ends: dict[int, int] = {}  # chunk offset -> the offset after it
         chunk_at: int | None = None  # the last chunk's offset ...
         pending: dict[int, np.ndarray] | None = None  # ... and its index records so far (None: none yet)
         with self.path.open("rb") as f:
@@ -577,6 +584,7 @@ class McapSource(Source):
                     break
                 if op == 0x06:  # Chunk: its bytes are skipped
                     chunk_at, pending = at, None
+                    chunk_ends[at] = at + 9 + length
                     f.seek(length, 1)
                 elif op == 0x07:  # MessageIndex: channel id, (log time, offset) pairs
                     body = f.read(length)
@@ -596,6 +604,7 @@ class McapSource(Source):
                     return None
                 else:  # Header, Attachment, Metadata, DataEnd, the summary's records: skipped
                     f.seek(length, 1)
+        self._chunks = table
         return (counts, {t: v[2] for t, v in first.items()}, {t: v[2] for t, v in last.items()}, stop)
 
     def _count_chunk(self, chunk_at: int):
@@ -692,18 +701,29 @@ class McapSource(Source):
 
         return Thunk(decode, data, ch.message_encoding)
 
-    def _stream(self, wanted: set[str] | None) -> Iterator[RawMessage]:
+    def _stream(self, wanted: set[str] | None, skip: SkipBefore | None = None) -> Iterator[RawMessage]:
+        """Every record in file order. ``skip``: with the chunk table of ``_scan_indexes`` (an
+        MCAP without a summary), the chunks ``io.skip.unread_chunks`` lets go before the skip
+        time are read but not decompressed, their messages counted from the table (the message
+        indexes stay those of the whole log)."""
         from mcap.records import Channel, Chunk, Message, Schema
         from mcap.stream_reader import StreamReader
 
         self._stop = None
         n = 0
         counts: dict[str, int] = {}
+        unread = self._unread_table(skip) if skip is not None and getattr(self, "_chunks", None) else {}
         with self.path.open("rb") as f:
             try:
                 reader = StreamReader(f, skip_magic=False, validate_crcs=True, emit_chunks=True,
                                       record_size_limit=min(self.max_bytes, self.size))
                 for top in reader.records:
+                    if isinstance(top, Chunk) and unread and _tell(f) in unread:
+                        for cid, k in unread[_tell(f)].items():
+                            topic = self.channels[cid].topic
+                            if wanted is None or topic in wanted:
+                                counts[topic] = counts.get(topic, 0) + k
+                        continue
                     inner = self._chunk_records(top, _tell(f)) if isinstance(top, Chunk) else [top]
                     for record in inner:
                         if isinstance(record, Schema):
@@ -725,6 +745,14 @@ class McapSource(Source):
             except Exception as err:  # noqa: BLE001 - truncated or corrupt: stop here
                 self._stop = _stop_text(self.path, n, _tell(f), err)
 
+    def _unread_table(self, skip: SkipBefore) -> dict[int, dict[int, int]]:
+        """{chunk end offset: {channel: messages}} of the chunks of ``_chunks`` that ``skip`` lets
+        go unread (``io.skip.unread_chunks``, as for an indexed MCAP)."""
+        early = [c for c in self._chunks if c[1] < skip.ns and all(cid in self.channels for cid in c[2])]
+        keep_out = unread_chunks(early, lambda c: (self.channels[cid].topic for cid in c[2]),
+                                 lambda c: (c[1], c[0]), skip.keep_all, skip.keep_last)  # fmt: skip
+        return {early[k][0]: early[k][2] for k in keep_out}
+
     def _chunk_records(self, chunk: Any, pos: int | None) -> list[Any]:
         """The records of an MCAP chunk, decompressed within its declared size and the limit
         (``TooLargeError``), its CRC checked."""
@@ -743,7 +771,7 @@ class McapSource(Source):
             return
         if not self.indexed:
             try:
-                yield from self._stream(topics)
+                yield from self._stream(topics, skip)
             finally:  # also when the reader stops early (a time window's end)
                 self.stopped_at = self._stop
             return
