@@ -58,7 +58,8 @@ def test_info_with_mount_and_depth_pairing(tmp_path):
             camera_info("/cam/depth/camera_info", S, width=1, height=1, fx=1, fy=1, cx=0, cy=0),
             image("/cam/depth/image_raw", S + 2, [[1000]], frame_id="cam_optical")]
     path = write_log(tmp_path / "log.bag", "ros1", msgs)
-    res = _run(path, "--tf", "base_link:laser=0.1,0,0.2,0,0,0", "--tf", "/base_link:/cam_optical=0,0,0.5,0,0,0")
+    res = _run(path, "--tf", "base_link:laser=0.1,0,0.2,0,0,0", "--tf",
+               "/base_link:/cam_optical=0,0,0.5,-1.5708,0,-1.5708")  # (REP 103: the optical axes)
     assert res.exit_code == 0, res.output
     assert "      laser  [user mount]" in res.output
     assert "uses: depth, frame cam_optical (CameraInfo /cam/depth/camera_info)" in res.output

@@ -634,8 +634,9 @@ def test_a_real_log_whose_frames_cannot_be_placed_is_named_in_a_pair(tmp_path):
 def test_depth_images_in_a_body_frame_are_named_and_can_be_read_so(tmp_path):
     """A simulated camera whose images carry its link frame (x forward, z up: Gazebo's default)
     instead of its optical frame: read as optical, it faces straight up (a wall 3 m ahead becomes
-    a ceiling): replay warns, once, naming replay.depth_frame_axes=body; with it, the map is that
-    of the same images in a proper optical frame (tf camera_link -> camera_optical, REP 103)."""
+    a ceiling): replay warns, once, naming replay.depth_frame_axes=body, and so does info; with
+    it, the map is that of the same images in a proper optical frame (tf camera_link ->
+    camera_optical, REP 103)."""
     from logfactory import camera_info, image, tf
 
     S = 1_000_000_000
@@ -659,6 +660,8 @@ def test_depth_images_in_a_body_frame_are_named_and_can_be_read_so(tmp_path):
                       "optical frame (z forward, x right, y down) faces straight up: is it the camera's body frame "
                       "(x forward, z up; a Gazebo camera link) rather than its optical frame? --set "
                       "replay.depth_frame_axes=body reads them so; if the camera does face up, ignore this"], r.stderr
+    info = invoke("info", body).stdout  # (info says it too, from the camera's mount on the robot's base)
+    assert f"  - {warned[0]}" in info and "faces straight up" not in invoke("info", optical).stdout, info
     up = o_keys(tmp_path / "as_optical")
     assert len(up) and (up[:, 2] * 0.05 > 3.0).all()  # the wall became a ceiling 3 m over the camera
     for args, out in (([body, "--set", "replay.depth_frame_axes=body"], "as_body"), ([optical], "ref")):

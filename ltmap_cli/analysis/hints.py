@@ -71,6 +71,24 @@ def clock_apart(topic: str, offsets_s: dict[str, float], tf_topics) -> str | Non
             f"record time")  # fmt: skip
 
 
+UPWARD_COS = 0.9  # an optical frame whose z axis is within 26 deg of straight up ...
+LEVEL_SIN = 0.45  # ... while its y axis (the image's down) is within 27 deg of level: a body frame?
+
+
+def body_frame_suspect(topic: str, frame_id: str, R) -> str | None:
+    """A warning when depth images on ``topic``, read in an optical frame (z forward, x right, y
+    down: REP 103's camera convention), would face straight up while the image's down is level,
+    with ``R`` (3 x 3 or 4 x 4) their frame's rotation in a frame whose z is up: the signature of
+    the camera's body frame (x forward, z up; a Gazebo camera link) given as the images' frame.
+    None otherwise. (Replay and info alike.)"""
+    if R[2][2] > UPWARD_COS and abs(R[2][1]) < LEVEL_SIN:
+        return (f"depth images on {topic} are in frame {frame_id}, which as an optical frame (z forward, x right, "
+                f"y down) faces straight up: is it the camera's body frame (x forward, z up; a Gazebo camera link) "
+                f"rather than its optical frame? --set replay.depth_frame_axes=body reads them so; if the camera "
+                f"does face up, ignore this")  # fmt: skip
+    return None
+
+
 def _clock_hints(report: dict) -> list[str]:
     """Sensor topics none of whose frames was used, stamped on another clock than tf."""
     offsets = report.get("header_stamp_offset_s") or {}

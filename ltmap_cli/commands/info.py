@@ -20,7 +20,7 @@ from pathlib import Path
 
 import click
 
-from ..analysis.hints import clock_apart
+from ..analysis.hints import body_frame_suspect, clock_apart
 from ..config import ReplayConfig, load_config, parse_set, set_dotted
 from ..core.config import MapConfig
 from ..errors import LogReadError, TransformError
@@ -196,6 +196,7 @@ def gather(
         else:  # neither map nor odom: the listing shows the frames to choose from
             warnings.append(str(err))
     used: dict[str, str] = {}
+    base = choose_base_frame(frames, base_frame or MapConfig().robot.base_frame)
     for kind, group in (("laser", sel.scans), ("cloud", sel.clouds), ("depth", list(sel.depths))):
         for topic in group:
             msg = sensor_first.get(topic)
@@ -254,6 +255,13 @@ def gather(
                 problem = buf.connection_problem(fixed, frame)
                 if problem:
                     warnings.append(f"{topic}: every frame would be skipped: {problem}")
+                elif kind == "depth" and frame != fixed:  # replay's check of the camera's axes, against
+                    # the robot's (level) base through the camera's static mount, else the fixed frame
+                    up = base if base in buf.frames and base != frame else fixed
+                    R, _ = buf.try_lookup(up, frame, dec.stamp_ns(msg.header.stamp))
+                    text = body_frame_suspect(topic, frame, R) if R is not None else None
+                    if text:
+                        warnings.append(text)
     for topic, why in sel.skipped.items():
         if topic in sensor_first and sensor_first[topic] is not None and topics[topic].msgtype == IMAGE:
             why += f" (encoding {sensor_first[topic].encoding})"
@@ -306,7 +314,7 @@ def gather(
         "frames": sorted(frames),
         "tree": buf.tree_text(),
         "fixed_frame": fixed,
-        "base_frame": choose_base_frame(frames, base_frame or MapConfig().robot.base_frame),
+        "base_frame": base,
         "sensor_frames": sorted(sensor_frames),
         "stamp_offset_s": {k: v / NS for k, v in sorted(offset.items())},
         "used": used,

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.hints import clock_apart
+from ..analysis.hints import body_frame_suspect, clock_apart
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError
@@ -484,15 +484,12 @@ class Replay:
         as the image's frame."""
         if self.cfg.replay.depth_frame_axes == "body":
             return T @ BODY_FROM_OPTICAL
-        if topic not in self._axes_checked:
+        # (the fixed frame's z is up: not so when the map is made in the camera's own frame)
+        if topic not in self._axes_checked and frame_id != self.state.fixed_frame:
             self._axes_checked.add(topic)
-            # (the fixed frame's z is up: not so when the map is made in the camera's own frame)
-            if T[2, 2] > UPWARD_COS and abs(T[2, 1]) < LEVEL_SIN and frame_id != self.state.fixed_frame:
-                warnings.warn(LtmapWarning(
-                    f"depth images on {topic} are in frame {frame_id}, which as an optical frame (z forward, x right, "
-                    f"y down) faces straight up: is it the camera's body frame (x forward, z up; a Gazebo camera "
-                    f"link) rather than its optical frame? --set replay.depth_frame_axes=body reads them so; if "
-                    f"the camera does face up, ignore this"), stacklevel=2)  # fmt: skip
+            text = body_frame_suspect(topic, frame_id, T)
+            if text:
+                warnings.warn(LtmapWarning(text), stacklevel=2)
         return T
 
     def _warm_up(self) -> None:
@@ -568,8 +565,6 @@ class Replay:
 
 # the optical frame's axes in a camera body frame (x forward, y left, z up): z forward, x right, y down
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])
-UPWARD_COS = 0.9  # an optical frame whose z axis is within 26 deg of straight up ...
-LEVEL_SIN = 0.45  # ... while its y axis (the image's down) is within 27 deg of level: a body frame?
 
 
 def _json_default(o):
