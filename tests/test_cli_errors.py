@@ -215,3 +215,38 @@ def test_ctrl_c_maps_what_was_read_and_a_second_one_writes_nothing(tmp_path):
     assert (out / "report.json").read_bytes() == first
     OutputFolder.completed(out, command="replay")
     assert [q.name for q in tmp_path.iterdir()] == ["out"]  # no staging folder left behind
+
+
+def test_a_recording_split_into_more_files_than_the_open_file_limit(tmp_path):
+    """102 files of one recording (rosbag2 --max-bag-duration 0.2) under a soft limit of 64 open
+    files (often 1024, and a day of one-minute splits is 1440 files): replay raises the soft limit
+    toward the hard one and maps them all; under a hard limit of 64, one line, status 2 (before:
+    "Too many open files; check the path, its permissions and the free space")."""
+    import resource
+    import subprocess
+    import sys
+
+    msgs = room_messages(0.0, 20.0, False)
+    t0 = min(m.log_time_ns for m in msgs)
+    parts: dict = {}
+    for m in msgs:
+        parts.setdefault(0 if m.topic == "/tf_static" else (m.log_time_ns - t0) // 200_000_000, []).append(m)
+    logs = [write_log(tmp_path / f"part_{k:03d}.mcap", "mcap-ros2", ms) for k, ms in sorted(parts.items())]
+    assert len(logs) > 100
+
+    def run(soft_hard):
+        def limit():
+            resource.setrlimit(resource.RLIMIT_NOFILE, soft_hard)
+
+        return subprocess.run([sys.executable, "-m", "ltmap_cli", "replay", *map(str, logs), "-o",
+                               str(tmp_path / f"o{soft_hard[1]}"), "-q", "--no-plots"], capture_output=True, text=True,
+                              timeout=300, preexec_fn=limit)  # fmt: skip
+
+    _, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    r = run((64, hard))
+    assert r.returncode == 0, r.stderr
+    assert json.loads((tmp_path / f"o{hard}" / "report.json").read_text())["frames_used"] == {"/scan": 100}
+    r = run((64, 64))
+    assert r.returncode == 2 and r.stderr.strip().splitlines() == [
+        f"ltmap: error: {len(logs)} log files need more open files than this process may have (ulimit -Hn: 64); "
+        f"merge them first (`mcap merge`, `ros2 bag convert`) or raise the hard limit"], r.stderr

@@ -7,8 +7,36 @@ from pathlib import Path
 
 import click
 
-from ..errors import OutputError
+from ..errors import InputError, OutputError
 from ..outputs.folder import output_target
+
+FD_MARGIN = 64  # open files a run needs besides its logs' (numba's cache, outputs, threads)
+
+
+def allow_open_files(logs) -> None:
+    """A recording split into many files (``rosbag record --split``, rosbag2 ``--max-bag-duration``:
+    a day at one a minute is 1440 files) keeps each file open: the process's soft limit of open
+    files (often 1024) is raised toward its hard limit when the logs need more. Beyond the hard
+    limit, ``InputError`` in one line (before, the run stopped at the limit with "Too many open
+    files; check the path, its permissions and the free space")."""
+    import resource
+
+    n = 0
+    for p in map(Path, logs):
+        n += sum(1 for f in p.iterdir() if f.suffix in (".mcap", ".db3")) if p.is_dir() else 1
+    need = n + FD_MARGIN
+    soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
+    if soft == resource.RLIM_INFINITY or need <= soft:
+        return
+    if hard != resource.RLIM_INFINITY and need > hard:
+        raise InputError(f"{n} log files need more open files than this process may have (ulimit -Hn: {hard}); "
+                         f"merge them first (`mcap merge`, `ros2 bag convert`) or raise the hard limit")  # fmt: skip
+    try:
+        resource.setrlimit(resource.RLIMIT_NOFILE, (need if hard == resource.RLIM_INFINITY else min(hard, 2 * need),
+                                                    hard))  # fmt: skip
+    except (ValueError, OSError) as err:
+        raise InputError(f"{n} log files need {need} open files and the limit ({soft}) could not be raised ({err}); "
+                         f"run `ulimit -n {need}` first, or merge the files") from None
 
 
 def nonempty_output(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:

@@ -28,7 +28,7 @@ from ..io import decode as dec
 from ..io import rectify
 from ..io.logs import IMAGE, TruncatedLogError, open_logs
 from ..io.transforms import TfBuffer, choose_base_frame
-from . import sensor_options
+from . import allow_open_files, sensor_options
 
 NS = 1_000_000_000
 INFO_FULL_BYTES = 1 << 30  # logs up to this size in all are read whole (a few seconds) ...
@@ -433,6 +433,7 @@ def info(
         set_dotted(cfg, key, value)
     cfg.validate()
     rc = cfg.replay
+    allow_open_files(logs)
     r = gather(list(logs), rc.scan_topics, rc.cloud_topics, rc.depth_topics, rc.tf, rc.fixed_frame, allow_truncated,
                base_frame=cfg.map.robot.base_frame, full=full)  # fmt: skip
     if as_json:

@@ -15,7 +15,7 @@ from ..config import load_config, parse_set, set_dotted
 from ..errors import ConfigError
 from ..outputs.folder import OutputFolder, check_completed_input, listing
 from ..pipeline.replay import Replay, ReplayRequest
-from . import StatusLine, nonempty_output, sensor_options
+from . import StatusLine, allow_open_files, nonempty_output, sensor_options
 
 ETA_AFTER_S = 2.0  # the time left is shown after this much wall time (or 5 % of the log): no wild first guess
 
@@ -183,6 +183,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
         raise click.UsageError("give at least one LOG (a .bag, a ROS 2 bag folder or an .mcap)")
 
 
+    allow_open_files(logs)
     bar = None if quiet else ProgressBar()
     # first the output folder (lock, checks, staging): a bad -o must not cost a whole replay
     check_completed_input(static, "--static", "give its static.yaml, or build it again with ltmap build-static")
