@@ -701,3 +701,35 @@ def test_tf_samples_tf2_refuses_are_ignored_not_fatal(tmp_path):
     a, _ = read_state(tmp_path / "o" / "snapshots" / "state_final.npz")
     b, _ = read_state(tmp_path / "clean" / "snapshots" / "state_final.npz")
     assert all(np.array_equal(a[key], b[key]) for key in b)
+
+
+def test_a_clock_reset_inside_a_log_is_named_with_the_windows_to_map_apart(tmp_path):
+    """A simulation reset 15 s into a 30 s log: every header stamp (tf and laser) goes back 1000 s.
+    The pipeline's ticks follow the sensor frames' stamps, so the parts must be mapped apart: one
+    warning says where the stamps jump and gives the --end / --start that split the log there;
+    each part so mapped has no jump (tf read around a window may: tf is keyed by stamp)."""
+    from logfactory import write_log as write
+
+    S = 1_000_000_000
+    msgs = room_messages(0.0, 30.0, False)
+    t0 = min(m.log_time_ns for m in msgs)
+
+    def reset(m: Msg) -> Msg:
+        if m.log_time_ns - t0 > 15 * S:
+            if "header" in m.fields:
+                m.fields["header"]["stamp"] -= 1000 * S
+            for tr in m.fields.get("transforms", []) if m.topic == "/tf" else []:
+                tr["header"]["stamp"] -= 1000 * S
+        return m
+
+    log = write(tmp_path / "reset.mcap", "mcap-ros2", [reset(m) for m in msgs])
+    r = invoke("replay", log, "-o", tmp_path / "o", "--no-plots")
+    assert r.exit_code == 0, r.stderr
+    assert "ltmap: warning: header stamps on /scan jump back by 999.8 s at 15.1 s of log time: a clock or " \
+        "simulation reset? Frames after it are placed with tf of the same clock only; map the parts apart with " \
+        "--end 15 and --start 15" in r.stderr, r.stderr  # fmt: skip
+    assert report(tmp_path / "o")["stamp_jumps_back"] == {"/scan": {"at_s": 15.1, "by_s": 999.8, "split_s": 15.0}}
+    for part, args in (("a", ["--end", "15"]), ("b", ["--start", "15"])):
+        r = invoke("replay", log, "-o", tmp_path / part, "--no-plots", *args)
+        assert r.exit_code == 0 and "jump back" not in r.stderr, r.stderr
+        assert report(tmp_path / part)["stamp_jumps_back"] == {}

@@ -12,6 +12,7 @@ command prints them as ``ltmap: warning:`` lines.
 - A sensor topic none of whose frames was used, whose header stamps are on another clock than
   tf's (``clock_apart``): ``replay.sensor_stamps=log`` named.
 - tf or odometry samples ignored as tf2 ignores them (NaN, a quaternion not of unit length).
+- Header stamps that jump back (a clock or simulation reset): where, and the windows to map apart.
 """
 
 from __future__ import annotations
@@ -32,6 +33,13 @@ def replay_hints(report: dict, *, st_rise_s: float, resolution: float) -> list[s
                    f"placed at angle_min + i * angle_increment, as ROS does")
     out.extend(_idle_logs(report))
     out.extend(_clock_hints(report))
+    jumps = report.get("stamp_jumps_back") or {}
+    if jumps:  # (one line: the earliest jump, and how many topics jump)
+        topic, j = min(jumps.items(), key=lambda kv: (kv[1]["at_s"], kv[0]))
+        more = f" (and on {len(jumps) - 1} more topics)" if len(jumps) > 1 else ""
+        out.append(f"header stamps on {topic[:120]} jump back by {j['by_s']:g} s at {j['at_s']:g} s of log time{more}: "
+                   f"a clock or simulation reset? Frames after it are placed with tf of the same clock only; map the "
+                   f"parts apart with --end {j['split_s']:g} and --start {j['split_s']:g}")  # fmt: skip
     invalid = report.get("tf_samples_invalid") or {}
     if invalid:  # (one line, however many edges: a hostile log may name thousands)
         edges = bounded(f"{n} of {edge[:120]}" for edge, n in sorted(invalid.items(), key=lambda kv: -kv[1]))

@@ -279,6 +279,9 @@ class Replay:
             reader = open_reader(stream, timer.seconds, self.threads)
             stopped_ns = None  # interrupt(): the log time of the last sensor frame taken
             offsets: dict[str, float] = {}  # topic -> record time - header stamp of its first message (s)
+            last_stamp: dict[str, int] = {}  # topic -> the header stamp of its last message ...
+            last_log: dict[str, int] = {}  # ... and its log time
+            jumps: dict[str, dict] = {}  # sensor topic -> its first jump back in header stamps (a clock reset)
             last_ns = start_ns
             try:
                 self._feed_localization(None)
@@ -290,8 +293,16 @@ class Replay:
                         if not isinstance(item, (TfSample, OdometrySample)):
                             continue
                     last_ns = log_ns
-                    if topic not in offsets and not getattr(item, "static", False):
-                        offsets[topic] = (log_ns - item.stamp_ns) / NS
+                    if not getattr(item, "static", False):
+                        if topic not in offsets:
+                            offsets[topic] = (log_ns - item.stamp_ns) / NS
+                        prev = last_stamp.get(topic)  # (sensor frames: their stamps drive the ticks)
+                        if prev is not None and item.stamp_ns < prev - STAMP_JUMP_NS and topic not in jumps \
+                                and not isinstance(item, (TfSample, OdometrySample)):  # fmt: skip
+                            jumps[topic] = {"at_s": round((log_ns - logs.start_ns) / NS, 3),
+                                            "by_s": round((prev - item.stamp_ns) / NS, 3),
+                                            "split_s": round((last_log[topic] + log_ns) / 2e9 - logs.start_ns / NS, 3)}  # fmt: skip
+                        last_stamp[topic], last_log[topic] = item.stamp_ns, log_ns
                     self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
@@ -322,6 +333,7 @@ class Replay:
                 "interrupted_at_s": None if stopped_ns is None else round((end_ns - logs.start_ns) / NS, 3),
                 "header_stamp_offset_s": {t: round(v, 6) for t, v in sorted(offsets.items())},
                 "tf_samples_invalid": dict(self.scheduler.tf.invalid),
+                "stamp_jumps_back": jumps,
             }
         self._check_used(sel, inputs["messages_not_decoded"], offsets)
         return self._finish(run, inputs, static_info, resume_info)
@@ -562,6 +574,8 @@ class Replay:
         self.progress(Progress(self._done_s, self.log_total_s, sum(self.counts.used.values()), now - self._t_wall0,
                                phase))  # fmt: skip
 
+
+STAMP_JUMP_NS = 10**9  # header stamps going back more than this (a clock reset) are reported
 
 # the optical frame's axes in a camera body frame (x forward, y left, z up): z forward, x right, y down
 BODY_FROM_OPTICAL = np.array([[0.0, 0.0, 1.0, 0.0], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0]])

@@ -37,6 +37,7 @@ class Report:
     window: dict | None  # --start / --end: the log times mapped (s from the log's first message), else None
     header_stamp_offset_s: dict  # sensor, tf and odometry topic -> record time - stamp of its first message (s)
     tf_samples_invalid: dict  # "parent -> child" -> tf / odometry samples refused (NaN, a quaternion not unit), as tf2 does
+    stamp_jumps_back: dict  # sensor topic -> {"at_s", "by_s", "split_s" (s)} of its first header stamp jump back
     interrupted_at_s: float | None  # Ctrl-C (Replay.interrupt): the log time mapped up to (s from its first message)
     peak_memory_mb: float
     map_memory_mb: float
