@@ -21,9 +21,9 @@ def allow_open_files(logs) -> None:
     files; check the path, its permissions and the free space")."""
     import resource
 
-    n = 0
-    for p in map(Path, logs):
-        n += sum(1 for f in p.iterdir() if f.suffix in (".mcap", ".db3")) if p.is_dir() else 1
+    from ..io.sources import storage_files
+
+    n = sum(len(storage_files(p)) if p.is_dir() else 1 for p in map(Path, logs))
     need = n + FD_MARGIN
     soft, hard = resource.getrlimit(resource.RLIMIT_NOFILE)
     if soft == resource.RLIM_INFINITY or need <= soft:

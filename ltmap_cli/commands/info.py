@@ -228,11 +228,12 @@ def gather(
                 cam = info_first.get(sel.depths[topic])
                 lens = rectify.distortion(cam) if cam is not None else None
                 if lens is not None:
-                    if lens.model in rectify.MODELS:
-                        used[topic] += f", lens {lens.model} rectified to pinhole"
+                    try:  # replay's own check (io.rectify), on one point
+                        rectify.distort(0.0, 0.0, lens, sensor_where[topic])
+                    except LogReadError as err:
+                        warnings.append(f"{topic}: replay would stop on its first image: {err}")
                     else:
-                        warnings.append(f"{topic}: replay would stop on its first image: its CameraInfo has "
-                                        f"distortion model {lens.model!r}; ltmap rectifies {', '.join(rectify.MODELS)}")
+                        used[topic] += f", lens {lens.model} rectified to pinhole"
                 enc = str(getattr(msg, "encoding", ""))
                 if hasattr(msg, "format"):  # a CompressedImage: the check replay makes on every image
                     from ..io import compressed_depth

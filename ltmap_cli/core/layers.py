@@ -972,8 +972,7 @@ class LayeredMap:
         more (the worker saw an older list; ``_publish_quiet``), in key order: what it would have
         been with the map as the frame begins."""
         o = self.O
-        box = projection.fill[9]
-        stale = stale_skips(projection.skipped, box, o.table_keys, o.table_vals, q.quiet)
+        stale = stale_skips(projection.skipped, projection.box, o.table_keys, o.table_vals, q.quiet)
         if not len(stale):
             return projection
         keys = np.empty(len(stale), dtype=np.int64)

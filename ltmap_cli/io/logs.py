@@ -326,7 +326,7 @@ class LogSet:
             for st in streams:
                 st.close()
         self._warn_twice(twice)
-        self._finish()
+        self.finish()
 
     def _warn_twice(self, twice: Counter) -> None:
         if twice:
@@ -348,11 +348,9 @@ class LogSet:
             it.close()
 
     def finish(self) -> None:
-        """For a reader that stops early: record (``stats.stopped_at``) the damage met in what was
-        read, raising ``TruncatedLogError`` unless ``allow_truncated``."""
-        self._finish()
-
-    def _finish(self) -> None:
+        """Record (``stats.stopped_at``) the damage met in what was read, raising
+        ``TruncatedLogError`` unless ``allow_truncated``: at the stream's end, or by a reader
+        that stops early."""
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
         if not stops:
             return
@@ -424,7 +422,7 @@ class LogSet:
         for topic, t, decode, where, log in stream:
             if trail_ns is not None and t > trail_ns:  # past the window and its tf: stop reading
                 stream.close()
-                self._finish()
+                self.finish()
                 return
             kind = kinds[topic]
             if end_ns is not None and t > end_ns and kind not in ("tf", "odom"):

@@ -418,7 +418,7 @@ class Ros2BagSource(Source):
         import sqlite3
 
         out: dict[str, int] = {}
-        dbs = sorted(self.path.glob("*.db3")) if self.path.is_dir() else [self.path]
+        dbs = storage_files(self.path, ".db3") if self.path.is_dir() else [self.path]
         try:
             for db in dbs:
                 con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
@@ -442,6 +442,8 @@ class Ros2BagSource(Source):
 
 
 class McapSource(Source):
+    _chunks: list | None = None  # an MCAP without a summary: its chunks as _scan_indexes found them
+
     def __init__(self, path: Path, fmt: str | None = None, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20),
                  message_codec: str | None = None):
         """``message_codec``: "zstd" when each message is compressed by itself (a ROS 2 bag
@@ -593,8 +595,8 @@ class McapSource(Source):
                     cid, size = struct.unpack_from("<HI", body, 0)
                     if size % 16 or 6 + size > len(body):
                         return None
-                    if cid not in self.channels and not self._learn_channels(chunk_at, cid):
-                        return None
+                    if cid not in self.channels and (self._count_chunk(chunk_at) is None or cid not in self.channels):
+                        return None  # (reading the chunk learns its Schema and Channel records)
                     pending = {} if pending is None else pending
                     pending[cid] = np.frombuffer(body, dtype="<u8", count=size // 8, offset=6).reshape(-1, 2)
                 elif op in (0x03, 0x04):  # Schema, Channel outside chunks
@@ -634,28 +636,6 @@ class McapSource(Source):
         except Exception:  # noqa: BLE001 - a damaged chunk: every chunk is read instead
             return None
         return {cid: np.array(rows, dtype=np.uint64).reshape(-1, 2) for cid, rows in out.items()}
-
-    def _learn_channels(self, chunk_at: int, cid: int) -> bool:
-        """Read the Schema and Channel records of the chunk at ``chunk_at``; whether channel
-        ``cid`` is then known."""
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Channel, Chunk, Schema
-
-        try:
-            with self.path.open("rb") as f:
-                f.seek(chunk_at + 1)
-                length = struct.unpack("<Q", f.read(8))[0]
-                chunk = Chunk.read(ReadDataStream(_Bounded(f, length)))
-                for record in self._chunk_records(chunk, chunk_at):
-                    if isinstance(record, Schema):
-                        self.schemas[record.id] = record
-                    elif isinstance(record, Channel):
-                        self.channels[record.id] = record
-        except TooLargeError:
-            raise
-        except Exception:  # noqa: BLE001 - a damaged chunk: every chunk is read instead
-            return False
-        return cid in self.channels
 
     def _type(self, ch: Any) -> str:
         schema = self.schemas.get(ch.schema_id)
@@ -712,7 +692,7 @@ class McapSource(Source):
         self._stop = None
         n = 0
         counts: dict[str, int] = {}
-        unread = self._unread_table(skip) if skip is not None and getattr(self, "_chunks", None) else {}
+        unread = self._unread_table(skip) if skip is not None and self._chunks else {}
         with self.path.open("rb") as f:
             try:
                 reader = StreamReader(f, skip_magic=False, validate_crcs=True, emit_chunks=True,
@@ -982,6 +962,14 @@ def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)
     raise InputError(f"{path} is not a robot log (it starts with {head[:8]!r}); {_KINDS}")
 
 
+STORAGE_SUFFIXES = (".mcap", ".db3")  # the files of a ROS 2 bag folder that hold its messages
+
+
+def storage_files(folder: Path, suffix: str | None = None) -> list[Path]:
+    """The files of a ROS 2 bag folder that hold its messages (of one ``suffix``), sorted."""
+    return sorted(f for f in Path(folder).iterdir() if f.suffix in ((suffix,) if suffix else STORAGE_SUFFIXES))
+
+
 def _message_compression(folder: Path) -> str | None:
     """The compression of each message of a ROS 2 bag (``ros2 bag record --compression-mode
     message``: each message's bytes compressed by themselves, in any storage), from its
@@ -1008,7 +996,7 @@ def _message_compression(folder: Path) -> str | None:
 def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
     from .safe_yaml import MAX_YAML_BYTES, check_regular_file
 
-    mcaps = sorted(path.glob("*.mcap")) if path.is_dir() else []
+    mcaps = storage_files(path, ".mcap") if path.is_dir() else []
     if mcaps:  # mcap storage: the mcap package streams it, and reads what a cut-off file still has
         for m in mcaps:
             check_regular_file(m, "log", InputError)
@@ -1016,7 +1004,7 @@ def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
         return [McapSource(m, fmt="ros2-mcap", max_bytes=max_bytes, message_codec=codec) for m in mcaps]
     if path.is_dir():  # rosbags reads metadata.yaml whole: a FIFO or a huge file would hang it
         check_regular_file(path / "metadata.yaml", "ROS 2 bag metadata.yaml", InputError, MAX_YAML_BYTES)
-        for db in path.glob("*.db3"):
+        for db in storage_files(path, ".db3"):
             check_regular_file(db, "log", InputError)
     try:
         return [Ros2BagSource(path)]
