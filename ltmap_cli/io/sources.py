@@ -609,20 +609,31 @@ class McapSource(Source):
         self._chunks = table
         return (counts, {t: v[2] for t, v in first.items()}, {t: v[2] for t, v in last.items()}, stop)
 
+    def _chunk_at(self, f: Any, offset: int) -> list[Any]:
+        """The records of the chunk whose record starts at ``offset`` in ``f`` (``_chunk_records``;
+        the record read within its declared length and the file's end), for the chunk index
+        (``_indexed_messages``) and the unindexed scan (``_count_chunk``) alike."""
+        from mcap.data_stream import ReadDataStream
+        from mcap.records import Chunk
+
+        f.seek(offset + 1)
+        head = f.read(8)
+        if len(head) != 8:
+            raise EOFError("the chunk's record is cut off")
+        length = min(struct.unpack("<Q", head)[0], max(self.size - offset - 9, 0))  # (never past the file's end)
+        chunk = Chunk.read(ReadDataStream(_Bounded(f, length)))
+        return self._chunk_records(chunk, offset)
+
     def _count_chunk(self, chunk_at: int):
         """{channel: (log time, offset) rows} of the messages of the chunk at ``chunk_at``, read
         whole (and its Schema and Channel records learnt); None when it cannot be read."""
         import numpy as np
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Channel, Chunk, Message, Schema
+        from mcap.records import Channel, Message, Schema
 
         out: dict[int, list] = {}
         try:
             with self.path.open("rb") as f:
-                f.seek(chunk_at + 1)
-                length = struct.unpack("<Q", f.read(8))[0]
-                chunk = Chunk.read(ReadDataStream(_Bounded(f, length)))
-                for k, record in enumerate(self._chunk_records(chunk, chunk_at)):
+                for k, record in enumerate(self._chunk_at(f, chunk_at)):
                     if isinstance(record, Schema):
                         self.schemas[record.id] = record
                     elif isinstance(record, Channel):
@@ -786,10 +797,8 @@ class McapSource(Source):
         ``keep_last`` topic, or its message index records (which name its channels) cannot be
         read; for each, (None, {topic: messages}) is yielded in its place, from those records."""
         import heapq
-        import io
 
-        from mcap.data_stream import ReadDataStream
-        from mcap.records import Chunk, Message
+        from mcap.records import Message
 
         summary = self.reader.get_summary()
         ids = {cid for cid, ch in summary.channels.items() if ch.topic in topics}
@@ -811,9 +820,7 @@ class McapSource(Source):
                 continue
             ci = item[4]
             try:
-                self.file.seek(ci.chunk_start_offset + 1 + 8, io.SEEK_SET)
-                chunk = Chunk.read(ReadDataStream(_Bounded(self.file, ci.chunk_length)))
-                records = self._chunk_records(chunk, ci.chunk_start_offset)
+                records = self._chunk_at(self.file, ci.chunk_start_offset)
             except TooLargeError:
                 raise
             except Exception as err:  # noqa: BLE001 - a damaged chunk: skip it, say which
