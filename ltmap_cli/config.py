@@ -98,6 +98,7 @@ class ReplayConfig:
     depth_outlier_filter: bool = False  # drop flying pixels at depth jumps (open3d radius outlier removal)
     depth_outlier_radius: float = 0.02  # m: a jump pixel needs ...
     depth_outlier_min_neighbors: int = 3  # ... this many other points within the radius to stay
+    workers: int = 0  # threads computing the frames' rays (0: one per usable core); the map is the same
     localize: bool = False  # --localize: correct map -> odom by scan matching (against --static if given)
     localization: LocalizationConfig = field(default_factory=LocalizationConfig)
 
@@ -139,6 +140,8 @@ class Config:
             problems.append(f"replay.max_static_mb must be > 0, got {self.replay.max_static_mb}")
         if not self.replay.max_message_mb > 0:
             problems.append(f"replay.max_message_mb must be > 0, got {self.replay.max_message_mb}")
+        if self.replay.workers < 0:
+            problems.append(f"replay.workers must be >= 0 (0: one per usable core), got {self.replay.workers}")
         if self.replay.map_period < 0:
             problems.append("replay.map_period must be >= 0")
         if self.replay.scan_fused_window_s < 0:

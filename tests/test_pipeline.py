@@ -3,6 +3,7 @@ executor, the layering of packages, and header stamps far from record times end 
 
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import threading
@@ -212,3 +213,42 @@ def test_frames_held_when_a_much_later_log_starts_are_placed_before_its_tf_arriv
     skipped = [e for e in events if isinstance(e, Skipped)]
     assert len([e for e in placed if e.frame.stamp_ns < YEAR_NS]) >= 39  # all but the last one
     assert len(skipped) <= 2, [e.reason for e in skipped]
+
+
+def test_usable_cores_reads_the_affinity_and_a_cgroup_quota(tmp_path, monkeypatch):
+    """replay.workers 0 means one worker per usable core: the CPU affinity, lowered to a
+    container's CPU quota (cgroup v2 cpu.max, v1 cfs quota) rounded up, and at least 1."""
+    from ltmap_cli.pipeline.executor import usable_cores
+
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: set(range(16)))
+    assert usable_cores(tmp_path / "none") == 16  # no cgroup files: the affinity
+    v2 = tmp_path / "v2"
+    v2.mkdir()
+    for text, want in (("max 100000\n", 16), ("200000 100000\n", 2), ("150000 100000", 2), ("50000 100000", 1),
+                       ("3200000 100000", 16), ("garbage", 16)):
+        (v2 / "cpu.max").write_text(text)
+        assert usable_cores(v2) == want, text
+    v1 = tmp_path / "v1"
+    (v1 / "cpu").mkdir(parents=True)
+    (v1 / "cpu" / "cpu.cfs_period_us").write_text("100000\n")
+    for quota, want in (("-1", 16), ("400000", 4), ("10000", 1)):
+        (v1 / "cpu" / "cpu.cfs_quota_us").write_text(quota + "\n")
+        assert usable_cores(v1) == want, quota
+    monkeypatch.setattr(os, "sched_getaffinity", lambda pid: {3})
+    assert usable_cores(v1) == 1
+
+
+def test_the_executor_takes_a_worker_per_usable_core_by_default(monkeypatch):
+    from ltmap_cli.pipeline import executor
+
+    monkeypatch.setattr(executor, "usable_cores", lambda: 6)
+    ex = OrderedExecutor(True)
+    try:
+        assert ex.workers == 6 and ex.pool._max_workers == 6
+        assert ex.keep == 24  # 4 frames in flight per worker
+    finally:
+        ex.close()
+    ex = OrderedExecutor(True, workers=2)
+    assert ex.workers == 2 and ex.keep == executor.IN_FLIGHT  # at least 8 in flight
+    ex.close()
+    assert OrderedExecutor(False).workers == 0

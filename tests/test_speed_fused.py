@@ -251,9 +251,10 @@ def test_fast_decoding_ros1_and_ros2_bags_fall_back():
         assert slow == fast
 
 
-def _replay(log: Path, out: Path, fast: bool, threads: bool, **sensor) -> tuple[Replay, dict]:
+def _replay(log: Path, out: Path, fast: bool, threads: bool, workers: int = 0, **sensor) -> tuple[Replay, dict]:
     cfg = Config()
     cfg.replay.plots = False
+    cfg.replay.workers = workers
     for k, v in sensor.items():
         setattr(cfg.map.sensor, k, v)
     r = Replay(cfg, ReplayRequest([log], out))
@@ -293,6 +294,20 @@ def test_fast_threaded_replay_equals_serial_replay(tmp_path):
     assert rep_s["stage_s"]["warmup"] > 0
     for topic, limit_ms in (("/scan", 50.0), ("/camera/depth/image_raw", 400.0)):
         assert serial.metrics.frame_ms[topic][0] < limit_ms, topic
+
+
+def test_any_number_of_ray_workers_gives_the_serial_map(tmp_path):
+    """replay.workers (0: one per usable core) changes how many frames are cast at once, never
+    the map: 5 workers (more than this machine's cores, so frames finish out of order) and 1."""
+    if not HOUSE.exists():
+        pytest.skip("house sample missing")
+    serial, rep_s = _replay(HOUSE, tmp_path / "serial", fast=True, threads=False)
+    assert rep_s["ray_workers"] == 0
+    for n in (5, 1):
+        run, rep = _replay(HOUSE, tmp_path / f"w{n}", fast=True, threads=True, workers=n)
+        assert rep["ray_workers"] == n
+        _same_maps(serial.lmap, run.lmap)
+        assert rep["events"]["list"] == rep_s["events"]["list"]
 
 
 def test_fast_serial_replay_equals_serial_replay(tmp_path):

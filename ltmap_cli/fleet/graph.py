@@ -259,6 +259,7 @@ def build_plan(
         for point in points:
             cfg = effective_config(manifest, site, base_cfg, list(sets or []), point)
             settings = to_dict(cfg)
+            settings["replay"].pop("workers", None)  # how many threads cast the rays: not the map's
             chain = Chain(site.name, point, [], plan.statics.get(site.name))
             prev_key, prev_dir = None, None
             for i, logs in enumerate(site.days, start=1):

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..errors import ConfigError, OutputError, output_error
+from ..pipeline.executor import usable_cores
 from .graph import BatchPlan, Chain, DayTask, StaticTask
 from .tasks import DONE, FAILED, UP_TO_DATE, run_task
 
@@ -153,10 +154,7 @@ def _workers(n: int) -> str:
 
 
 def default_workers() -> int:
-    try:
-        return max(1, len(os.sched_getaffinity(0)))
-    except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
+    return usable_cores()
 
 
 # ------------------------------------------------------------------------------------ output folder

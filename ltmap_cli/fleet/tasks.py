@@ -11,6 +11,7 @@ the driver as exceptions.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import socket
@@ -25,6 +26,8 @@ from ..outputs.folder import OutputFolder, tidy
 from ..outputs.snapshots import final_state
 from ..pipeline.replay import Replay, ReplayRequest
 from .graph import DayTask, StaticTask
+
+BATCH_RAY_WORKERS = 2  # ray workers of each replay of a batch whose config leaves replay.workers at 0
 
 DONE, UP_TO_DATE, FAILED = "done", "up to date", "failed"  # a task's result["status"]
 TASK_FILE = "batch_task.json"  # written last, inside the staging folder: the folder is complete
@@ -98,7 +101,10 @@ def _in_staging(task: StaticTask | DayTask, work) -> None:
 
 def _replay_day(task: DayTask, staging: Path, final: Path) -> None:
     request = ReplayRequest(list(task.logs), staging, static=task.static, resume=task.resume, final_dir=final)
-    Replay(task.cfg, request).run()
+    cfg = task.cfg
+    if cfg.replay.workers == 0:  # a batch runs a replay per core already: not one ray worker per core each
+        cfg = dataclasses.replace(cfg, replay=dataclasses.replace(cfg.replay, workers=BATCH_RAY_WORKERS))
+    Replay(cfg, request).run()
 
 
 def _build_static(task: StaticTask, staging: Path, final: Path) -> None:

@@ -4,14 +4,43 @@ map, strictly in submission order, so the result is that of the serial path."""
 
 from __future__ import annotations
 
+import math
 import os
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
 
-RAY_WORKERS = 2  # worker threads (at most the machine's cores)
-IN_FLIGHT = 8  # frames the workers may compute ahead of integration
+IN_FLIGHT = 8  # frames the workers may compute ahead of integration (at least; 4 per worker)
+CGROUP_ROOT = Path("/sys/fs/cgroup")
+
+
+def usable_cores(cgroup_root: Path = CGROUP_ROOT) -> int:
+    """The cores this process may run on: its CPU affinity (taskset, a container's cpuset),
+    lowered to a CPU quota's whole cores (cgroup v2 ``cpu.max``, v1 ``cpu.cfs_quota_us``: a
+    container limited to 2 CPUs on a 64-core host has 2), at least 1."""
+    try:
+        n = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        n = os.cpu_count() or 1
+    quota = None
+    try:
+        v2 = (cgroup_root / "cpu.max").read_text().split()
+        if len(v2) == 2 and v2[0] != "max":
+            quota = int(v2[0]) / int(v2[1])
+    except (OSError, ValueError, ZeroDivisionError):
+        pass
+    if quota is None:
+        try:
+            q = int((cgroup_root / "cpu" / "cpu.cfs_quota_us").read_text())
+            if q > 0:
+                quota = q / int((cgroup_root / "cpu" / "cpu.cfs_period_us").read_text())
+        except (OSError, ValueError, ZeroDivisionError):
+            pass
+    if quota is not None and quota > 0:
+        n = min(n, max(1, math.ceil(quota - 1e-9)))
+    return max(1, n)
 
 
 class OrderedExecutor:
@@ -19,10 +48,11 @@ class OrderedExecutor:
     submission order: all jobs beyond ``IN_FLIGHT``, and finished ones at the head. Without
     threads, ``fn`` runs at submission and ``ready()`` yields it at once (``wait_s`` None)."""
 
-    def __init__(self, threads: bool, workers: int = RAY_WORKERS, in_flight: int = IN_FLIGHT):
-        n = max(1, min(workers, os.cpu_count() or 1))
+    def __init__(self, threads: bool, workers: int = 0, in_flight: int = 0):
+        n = workers if workers > 0 else usable_cores()
+        self.workers = n if threads else 0
         self.pool = ThreadPoolExecutor(n, thread_name_prefix="ltmap-rays") if threads else None
-        self.keep = in_flight if threads else 0
+        self.keep = (in_flight or max(IN_FLIGHT, 4 * n)) if threads else 0
         self.jobs: deque = deque()
 
     def submit(self, payload, fn: Callable, *args) -> None:

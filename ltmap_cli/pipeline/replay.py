@@ -271,7 +271,7 @@ class Replay:
                                        fixed_frame_request=cfg.replay.fixed_frame,
                                        base_frame=cfg.map.robot.base_frame)  # fmt: skip
             self.caster = FrameCaster(run.lmap, cfg, fast=self.fast)
-            self.executor = OrderedExecutor(self.threads)
+            self.executor = OrderedExecutor(self.threads, cfg.replay.workers)
             win_start, win_end = logs.window_ns(cfg.replay.start_s, cfg.replay.end_s)  # None: not bounded
             stream = logs.messages(sel, fast=self.fast, depth_max_rate=cfg.map.sensor.depth_max_rate,
                                    start_ns=win_start, end_ns=win_end,
@@ -421,6 +421,7 @@ class Replay:
             mapping_wall_time_s=round(mapping_wall, 3),
             mapping_speed_vs_real_time=round(total / mapping_wall, 2) if mapping_wall > 0 else None,
             stage_s=timer.rounded(),
+            ray_workers=self.executor.workers,
             ticks=lmap.tick_index,
             peak_memory_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
             map_memory_mb=round(lmap.nbytes() / 2**20, 1),

@@ -32,6 +32,7 @@ class Report:
     mapping_wall_time_s: float  # up to the map's last snapshot (before map files, events, plots)
     mapping_speed_vs_real_time: float | None
     stage_s: dict  # stage -> wall seconds (pipeline/timing.py)
+    ray_workers: int  # threads that computed the frames' rays (replay.workers; 0: the serial path)
     ticks: int
     stopped_at: str | None  # where a damaged or cut-off log stopped being read
     window: dict | None  # --start / --end: the log times mapped (s from the log's first message), else None
