@@ -399,3 +399,40 @@ def test_resume_with_another_static_map_warns(tmp_path):
     assert "ltmap: warning: --resume" in other.output and "another static map" in other.output
     none = CliRunner().invoke(cli, [*base, "--resume", str(state), "-o", str(tmp_path / "d4")])
     assert none.exit_code == 0 and "no static map, and the run that wrote it had one" in none.output
+
+
+def test_state_file_fuzz_200_seeded_mutations(tmp_path):
+    """Seeded mutations of a state file (bytes flipped, runs overwritten, cut, bytes inserted,
+    anywhere: zip headers, numpy array headers, deflated data) read as --resume and diff read
+    it: the arrays, or one MapFileError; never another exception (numpy's header parser raised
+    tokenize's TokenError on a damaged header)."""
+    import random
+
+    from ltmap_cli.errors import MapFileError
+    from ltmap_cli.outputs.snapshots import read_snapshot_voxels
+
+    good = _state(tmp_path / "good.npz").read_bytes()
+    rng = random.Random(4321)
+    outcomes = {"read": 0, "refused": 0}
+    for k in range(200):
+        bad = bytearray(good)
+        kind = rng.choice(("flip", "run", "cut", "insert"))
+        at = rng.randrange(len(bad))
+        if kind == "flip":
+            for _ in range(rng.randint(1, 4)):
+                bad[rng.randrange(len(bad))] ^= 1 << rng.randrange(8)
+        elif kind == "run":
+            bad[at:at + 16] = bytes(rng.randrange(256) for _ in range(16))
+        elif kind == "cut":
+            del bad[at:]
+        else:
+            bad[at:at] = bytes(rng.randrange(256) for _ in range(rng.randint(1, 64)))
+        path = tmp_path / f"m{k}.npz"
+        path.write_bytes(bytes(bad))
+        try:
+            read_snapshot_voxels(path)
+            outcomes["read"] += 1
+        except MapFileError as err:
+            assert str(path) in str(err) and "\n" not in str(err), (k, kind, at)
+            outcomes["refused"] += 1
+    assert outcomes["refused"] > 100, outcomes  # most damage is found (zip CRCs)

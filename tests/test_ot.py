@@ -377,3 +377,47 @@ def test_resume_reads_only_the_long_term_voxels_of_a_snapshot(tmp_path):
     assert sorted(map(tuple, keys.tolist())) == sorted(map(tuple, lt_keys.tolist()))
     day2 = LayeredMap(MapConfig())
     assert load_resume(day2, path)["long_term_voxels"] == 3
+
+
+def test_blocks_of_one_value_go_as_one_leaf_and_give_the_voxel_list_file(tmp_path):
+    """blocks_ot_bytes pushes a whole block, 64-run or 8-run of one value as one leaf: the bytes
+    stay those of ot_bytes on every voxel listed, for whole blocks, blocks missing one voxel,
+    long-term voxels breaking a run (or equal to free: still one run), runs of 64 and 8, and
+    scattered voxels; and OctoMap's pruning reads them back as the same voxels."""
+    from ltmap_cli.io.ot import _local_tables, blocks_ot_bytes, ot_bytes, read_ot
+
+    free = np.float32(-2.0)
+    rng = np.random.default_rng(7)
+    blocks = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, -1, 0], [2, 2, 1], [3, -2, 0], [5, 5, 5]])
+    local_off, _ = _local_tables()
+    o_free = np.zeros((len(blocks), 512), dtype=bool)
+    o_free[0] = True  # a whole block
+    o_free[1] = True
+    o_free[1, 77] = False  # all but one voxel
+    o_free[2] = True  # whole, with long-term voxels below
+    o_free[3, local_off[:64]] = True  # the first 64-run in Morton order
+    o_free[3, local_off[128:136]] = True  # and one 8-run
+    o_free[4] = rng.random(512) < 0.5  # scattered
+    o_free[5, local_off[8:15]] = True  # an 8-run less one voxel
+    o_block = np.arange(len(blocks))
+    o_block[6] = -1  # long-term only, no sensor block
+    lt_keys = np.array([[0, 8, 0], [3, 12, 5], [4, 9, 1], [40, 40, 40], [41, 40, 40]])
+    lt = np.array([1.5, free, 0.7, 2.0, 2.0], dtype=np.float32)  # (0, 8, 0)'s... one equal to free
+    got = blocks_ot_bytes(blocks, o_block, o_free, float(free), lt_keys, lt, 0.05)
+    keys, vals = [], []
+    for n, b in enumerate(blocks):
+        if o_block[n] < 0:
+            continue
+        for off in np.flatnonzero(o_free[n]):
+            keys.append(b * 8 + [off >> 6, (off >> 3) & 7, off & 7])
+            vals.append(free)
+    listed = {tuple(k): v for k, v in zip(keys, vals)}
+    for k, v in zip(lt_keys.tolist(), lt):
+        listed[tuple(k)] = v  # long-term wins over free
+    k = np.array(list(listed), dtype=np.int64)
+    v = np.array(list(listed.values()), dtype=np.float32)
+    assert got == ot_bytes(k, v, 0.05)
+    (tmp_path / "m.ot").write_bytes(got)
+    rk, rv, _ = read_ot(tmp_path / "m.ot")
+    assert len(rk) == len(k) and dict(zip(map(tuple, rk.tolist()), rv.tolist())) == {a: float(b) for a, b in listed.items()}
+    assert len(got) < len(ot_bytes(k, v, 0.05, prune=False)) / 3  # the whole runs are single leaves

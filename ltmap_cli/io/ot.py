@@ -92,11 +92,12 @@ def _prune(codes, bits, out_codes, out_levels, out_bits):
     return top
 
 
-def _push_leaf(out_codes, out_levels, out_bits, top, code, bits):
-    """Push a voxel leaf on the prune stack of ``_prune``, merge eight equal siblings into their
-    parent while it can; the new stack size."""
+def _push_leaf(out_codes, out_levels, out_bits, top, code, bits, level=0):
+    """Push a leaf (a voxel, or at ``level`` > 0 a node all of whose voxels hold ``bits``, as
+    pruning them would leave it) on the prune stack of ``_prune``, merge eight equal siblings into
+    their parent while it can; the new stack size."""
     out_codes[top] = code
-    out_levels[top] = 0
+    out_levels[top] = level
     out_bits[top] = bits
     top += 1
     while top >= 8:
@@ -261,11 +262,15 @@ def _block_leaves(block_codes, lt_start, lt_offs, lt_bits, o_block, o_free, free
     storage offset) has Morton code ``block_code | local_code[li]``, li in Morton order. A voxel's
     value: its long-term log-odds bits if listed (``lt_offs`` / ``lt_bits`` of block n at
     ``lt_start[n]:lt_start[n + 1]``), else ``free_bits`` if ``o_free[o_block[n], off]`` (o_block -1:
-    no sensor block), else none. Leaves go through ``_prune``'s stack as they come. Returns the
-    number of leaves, or -1 if ``out_*`` are too small."""
+    no sensor block), else none. Leaves go through ``_prune``'s stack as they come; a run of 512,
+    64 or 8 voxels in Morton order (a node at level 3, 2 or 1) that all hold one value goes as one
+    leaf at that level: what pruning its voxels one by one would leave, without the pushes (a
+    floor's free space). Returns the number of leaves, or -1 if ``out_*`` are too small."""
     cap = out_codes.shape[0]
     scratch = np.zeros(512, dtype=np.uint32)
     has = np.zeros(512, dtype=np.bool_)
+    vals = np.zeros(512, dtype=np.uint32)  # the block's values in Morton order ...
+    present = np.zeros(512, dtype=np.bool_)  # ... where it has one
     top = 0
     for n in range(block_codes.shape[0]):
         for j in range(lt_start[n], lt_start[n + 1]):
@@ -275,16 +280,38 @@ def _block_leaves(block_codes, lt_start, lt_offs, lt_bits, o_block, o_free, free
         for li in range(512):
             off = local_off[li]
             if has[off]:
-                b = scratch[off]
+                vals[li] = scratch[off]
+                present[li] = True
             elif ob >= 0 and o_free[ob, off]:
-                b = free_bits
+                vals[li] = free_bits
+                present[li] = True
             else:
+                present[li] = False
+        for j in range(lt_start[n], lt_start[n + 1]):
+            has[lt_offs[j]] = False
+        code0 = block_codes[n]
+        li = 0
+        while li < 512:
+            level = 0
+            for lv in (3, 2, 1):  # the largest aligned run from li that is whole and of one value
+                size = 1 << (3 * lv)
+                if li & (size - 1) != 0:
+                    continue
+                whole = True
+                for t in range(li, li + size):
+                    if not present[t] or vals[t] != vals[li]:
+                        whole = False
+                        break
+                if whole:
+                    level = lv
+                    break
+            if level == 0 and not present[li]:
+                li += 1
                 continue
             if top >= cap:
                 return -1
-            top = _push_leaf(out_codes, out_levels, out_bits, top, block_codes[n] | local_code[li], b)
-        for j in range(lt_start[n], lt_start[n + 1]):
-            has[lt_offs[j]] = False
+            top = _push_leaf(out_codes, out_levels, out_bits, top, code0 | local_code[li], vals[li], level)
+            li += 1 << (3 * level)
     return top
 
 
@@ -295,8 +322,8 @@ def _kernels():
     global _push_leaf  # the kernels below call it: compiled first, as the global they resolve
     if not isinstance(_push_leaf, numba.core.registry.CPUDispatcher):
         _push_leaf = numba.njit(cache=True, inline="always")(_push_leaf)
-    return tuple(numba.njit(cache=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder, _walk,
-                                                      _block_leaves))
+    return tuple(numba.njit(cache=True, nogil=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder,
+                                                                  _walk, _block_leaves))  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------

@@ -7,6 +7,7 @@
 from __future__ import annotations
 
 import json
+import tokenize
 import zipfile
 import zlib
 from pathlib import Path
@@ -18,12 +19,19 @@ from .atomic import atomic_path
 
 FORMAT = "ltmap-state"
 VERSION = 1
+# deflate level of the arrays: 3 writes a 100 m floor's 650 MB of arrays in half the time of
+# numpy's savez_compressed (level 6: 3.3 s), into a file 1.5 times as big (18 MB against 12 MB)
+ZIP_LEVEL = 3
 
 
 def write_state(path: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
+    """An ``.npz`` (``np.load`` reads it) of ``arrays`` and the header ``meta``, deflated."""
     header = json.dumps({"format": FORMAT, "version": VERSION, **meta})
-    with atomic_path(path) as tmp, open(tmp, "wb") as f:
-        np.savez_compressed(f, __header__=np.array(header), **arrays)
+    with atomic_path(path) as tmp, open(tmp, "wb") as f, \
+            zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=ZIP_LEVEL, allowZip64=True) as zf:  # fmt: skip
+        for name, a in {"__header__": np.array(header), **arrays}.items():
+            with zf.open(name + ".npy", "w", force_zip64=True) as out:
+                np.lib.format.write_array(out, np.asanyarray(a), allow_pickle=False)
 
 
 MAX_STATE_BYTES = 8 * 2**30  # the arrays a state file may expand to (a 100 m floor's is ~1 GB)
@@ -61,7 +69,10 @@ def read_state(path: str | Path, max_bytes: int = MAX_STATE_BYTES) -> tuple[dict
                 arrays[info.filename.removesuffix(".npy")] = arr
     except MapFileError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, MemoryError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, MemoryError,
+            tokenize.TokenError, SyntaxError, NotImplementedError, RuntimeError) as exc:
+        # (numpy parses a damaged array header with tokenize; zipfile raises NotImplementedError
+        # for an unknown compression method, RuntimeError for a member flagged as encrypted)
         text = first_line(exc, 120)
         raise _fault(p, f"not a readable ltmap state file ({text})") from None
     try:
