@@ -73,6 +73,15 @@ def output_error(err: OSError, what: str) -> OutputError:
     return OutputError(f"cannot write {what}: {err.strerror or err}; choose another output path (-o)")
 
 
+def human(n: float) -> str:
+    """A byte count for a message: 512.0 B, 7.9 MB, 1.4 GB."""
+    for unit in ("B", "KB", "MB", "GB", "TB"):
+        if n < 1024 or unit == "TB":
+            return f"{n:.1f} {unit}"
+        n /= 1024
+    return f"{n:.1f} TB"
+
+
 def first_line(err: BaseException, limit: int | None = None) -> str:
     """What a library's exception says, as one line of an ltmap message: its first line (cut to
     ``limit`` characters), or its type's name when it says nothing."""

@@ -235,6 +235,76 @@ def test_ros2_bags_recorded_compressed_read_back_exactly(tmp_path, fmt, mode):
             open_logs(packed)
 
 
+@pytest.fixture
+def tmpdir_here(tmp_path, monkeypatch):
+    """TMPDIR pointed at a folder of this test (tempfile reads it again)."""
+    import tempfile
+
+    d = tmp_path / "tmpdir"
+    d.mkdir()
+    monkeypatch.setenv("TMPDIR", str(d))
+    monkeypatch.setattr(tempfile, "tempdir", None)
+    return d
+
+
+@pytest.mark.parametrize("fmt", ["ros2-sqlite3", "ros2-mcap"])
+def test_a_bag_compressed_file_by_file_is_read_from_a_copy_removed_at_the_end(tmp_path, fmt, tmpdir_here,
+                                                                              monkeypatch):
+    """--compression-mode file: every storage file one zstd stream. ltmap decompresses them into
+    a folder under TMPDIR (an MCAP storage then goes through ltmap's own MCAP reader), reads the
+    same frames as the plain bag, and removes the copy when the log is closed."""
+    from ltmap_cli.io import sources
+
+    plain = _all(_log(tmp_path, fmt, _mixed(), name="plain"))
+    packed = _log(tmp_path, fmt, _mixed(), name="packed", ros2_compression="file")
+    assert not list(packed.glob("*.db3")) and not list(packed.glob("*.mcap"))
+    with open_logs(packed) as logs:
+        copies = list(tmpdir_here.glob("ltmap-bag-*"))
+        assert len(copies) == 1 and (copies[0] / "metadata.yaml").is_file()
+        assert all(isinstance(s, sources.McapSource if fmt == "ros2-mcap" else sources.Ros2BagSource)
+                   for s in logs.sources)  # fmt: skip
+        got = list(logs.messages())
+    assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
+    assert not list(tmpdir_here.iterdir())  # the copy is gone
+    # a big one is said before it is made (minutes for tens of GB)
+    monkeypatch.setattr(sources, "DECOMPRESS_NOTE", 0)
+    with pytest.warns(Warning, match=f"compressed file by file: decompressing its 1 file .* into {tmpdir_here} first"):
+        open_logs(packed).close()
+
+
+def test_a_copy_that_would_fill_the_disk_stops_with_one_line(tmp_path, tmpdir_here, monkeypatch):
+    """The copy watches the disk as it fills: once it would leave less than DECOMPRESS_KEEP_FREE
+    (here: all but 1 kB of what is free), one line says where, how much, and what to do (TMPDIR,
+    `ros2 bag convert`), and nothing is left in TMPDIR. (rosbags' own copy ran into ENOSPC,
+    reported as a corrupt bag; a few kB of zstd can claim terabytes.)"""
+    import shutil
+
+    from ltmap_cli.io import sources
+
+    packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
+    monkeypatch.setattr(sources, "DECOMPRESS_KEEP_FREE", shutil.disk_usage(tmpdir_here).free - 1024)
+    with pytest.raises(LogReadError) as err:
+        open_logs(packed)
+    text = str(err.value)
+    assert "compressed file by file" in text and str(tmpdir_here) in text and "set TMPDIR" in text
+    assert "ros2 bag convert" in text and "\n" not in text
+    assert not list(tmpdir_here.iterdir())
+
+
+def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(tmp_path, tmpdir_here):
+    packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
+    z = next(packed.glob("*.zstd"))
+    data = bytearray(z.read_bytes())
+    data[:4] = b"\x00\x01\x02\x03"  # not a zstd frame
+    z.write_bytes(bytes(data))
+    with pytest.raises(LogReadError, match=f"{z.name} is not a readable zstd stream"):
+        open_logs(packed)
+    z.unlink()
+    with pytest.raises(InputError, match=f"{z.name} .in metadata.yaml. is missing"):
+        open_logs(packed)
+    assert not list(tmpdir_here.iterdir())
+
+
 def test_a_damaged_message_of_a_message_compressed_ros2_mcap_bag_is_skipped(tmp_path):
     msgs = [scan("/scan", t * S, [float(t)]) for t in (1, 2, 3)]
     bag = _log(tmp_path, "ros2-mcap", msgs, ros2_compression="message")

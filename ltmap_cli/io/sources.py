@@ -22,13 +22,15 @@ that declares more raises ``TooLargeError`` (a ``LogReadError``, even with --all
 
 from __future__ import annotations
 
+import errno
+import shutil
 import struct
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from ..errors import InputError, LogReadError, first_line, shown
+from ..errors import InputError, LogReadError, first_line, human, shown
 from .bounded import (
     DEFAULT_MAX_MESSAGE_MB,
     DecompressError,
@@ -84,6 +86,18 @@ def _stop_text(path: Path, count: int, offset: int | None, err: BaseException) -
     return f"{path}: reading stopped after {count} messages{where} ({reason})"
 
 
+class SharedDir:
+    """A temporary folder several sources read from: removed when the last one lets go."""
+
+    def __init__(self, path: Path, users: int):
+        self.path, self.users = path, users
+
+    def release(self) -> None:
+        self.users -= 1
+        if self.users <= 0:
+            shutil.rmtree(self.path, ignore_errors=True)
+
+
 class Source:
     note: str | None = None  # said once when opened (a ROS 1 bag read by scanning)
     path: Path
@@ -94,10 +108,20 @@ class Source:
     stopped_at: str | None = None
     end_stop: str | None = None  # where the file's end stops reading, when known before reading it (an unindexed MCAP)
 
+    temp_dir: SharedDir | None = None  # a folder it reads from (a decompressed copy), removed after its last reader
+
     def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:  # pragma: no cover
         raise NotImplementedError
 
     def close(self) -> None:
+        try:
+            self._close()
+        finally:
+            if self.temp_dir is not None:
+                self.temp_dir.release()
+                self.temp_dir = None
+
+    def _close(self) -> None:
         pass
 
 
@@ -283,7 +307,7 @@ class Ros1Source(Source):
         finally:  # also when the reader stops early (a time window's end): the damage met so far
             self.stopped_at = self._damage(list(dict.fromkeys(damaged)), n)
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.bag.close()
 
 
@@ -434,7 +458,7 @@ class Ros2BagSource(Source):
             return None
         return out if dbs else None
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.reader.close()
 
 
@@ -869,7 +893,7 @@ class McapSource(Source):
             return None
         return out
 
-    def close(self) -> None:
+    def _close(self) -> None:
         self.file.close()
 
 
@@ -977,21 +1001,29 @@ def storage_files(folder: Path, suffix: str | None = None) -> list[Path]:
     return sorted(f for f in Path(folder).iterdir() if f.suffix in ((suffix,) if suffix else STORAGE_SUFFIXES))
 
 
+def _bag_info(folder: Path) -> dict:
+    """rosbag2_bagfile_information of a ROS 2 bag folder's metadata.yaml ({} when it says nothing
+    readable: its files are read as they are)."""
+    from . import safe_yaml
+
+    meta = folder / "metadata.yaml"
+    try:
+        safe_yaml.check_regular_file(meta, "ROS 2 bag metadata.yaml", InputError, safe_yaml.MAX_YAML_BYTES)
+        info = (safe_yaml.loads(meta.read_text(errors="replace")) or {}).get("rosbag2_bagfile_information") or {}
+    except (OSError, ValueError, AttributeError, safe_yaml.yaml.YAMLError):
+        return {}
+    return info if isinstance(info, dict) else {}
+
+
+def _compression(info: dict) -> tuple[str, str]:
+    return str(info.get("compression_mode") or "").lower(), str(info.get("compression_format") or "").lower()
+
+
 def _message_compression(folder: Path) -> str | None:
     """The compression of each message of a ROS 2 bag (``ros2 bag record --compression-mode
     message``: each message's bytes compressed by themselves, in any storage), from its
-    metadata.yaml: "zstd", or None (none, or the whole file compressed: rosbags reads that)."""
-    from . import safe_yaml
-
-    check = safe_yaml.check_regular_file
-    meta = folder / "metadata.yaml"
-    try:
-        check(meta, "ROS 2 bag metadata.yaml", InputError, safe_yaml.MAX_YAML_BYTES)
-        info = (safe_yaml.loads(meta.read_text(errors="replace")) or {}).get("rosbag2_bagfile_information") or {}
-    except (OSError, ValueError, AttributeError, safe_yaml.yaml.YAMLError):
-        return None  # a bag that says nothing readable: its messages as they are
-    mode = str(info.get("compression_mode") or "").lower()
-    fmt = str(info.get("compression_format") or "").lower()
+    metadata.yaml: "zstd", or None (none, or the whole file compressed: ``_decompressed_copy``)."""
+    mode, fmt = _compression(_bag_info(folder))
     if mode != "message":
         return None
     if fmt != "zstd":
@@ -1000,9 +1032,102 @@ def _message_compression(folder: Path) -> str | None:
     return "zstd"
 
 
+DECOMPRESS_KEEP_FREE = 1 << 30  # a per-file compressed bag's copy leaves this much of its disk free
+DECOMPRESS_CHUNK = 8 << 20
+DECOMPRESS_NOTE = 256 << 20  # a copy of about this much or more is said before it is made
+
+
+def _decompressed_copy(folder: Path, info: dict) -> Path:
+    """A ROS 2 bag compressed file by file (``ros2 bag record --compression-mode file``: each
+    storage file one zstd stream, ``*.db3.zstd`` / ``*.mcap.zstd``): its files decompressed into a
+    new folder under the temporary directory (``TMPDIR``), beside a metadata.yaml that says
+    they are not compressed; returns it. sqlite3 cannot read a stream, and
+    an MCAP is read by seeking. The disk is watched as it fills: the copy stops with one line
+    when it would leave less than ``DECOMPRESS_KEEP_FREE`` (a few kB of zstd can claim terabytes),
+    instead of filling it (rosbags' own copy failed with ENOSPC, read as a corrupt bag)."""
+    import tempfile
+
+    import zstandard
+
+    mode, fmt = _compression(info)
+    if fmt != "zstd":
+        raise InputError(f"ROS 2 bag {folder}: its files are compressed with {fmt or '(no format named)'!r}; ltmap "
+                         f"reads zstd, rosbag2's compressor: decompress it with `ros2 bag convert`")  # fmt: skip
+    names = info.get("relative_file_paths")
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
+        raise LogReadError(f"ROS 2 bag {folder}: metadata.yaml lists no relative_file_paths; the bag folder is "
+                           f"incomplete")  # fmt: skip
+    files = []
+    for name in names:
+        src = folder / Path(name).name  # (rosbag2 lists names in the folder: a path elsewhere is not read)
+        if not src.is_file():
+            raise InputError(f"ROS 2 bag {folder}: {Path(name).name} (in metadata.yaml) is missing; the bag folder "
+                             f"is incomplete")  # fmt: skip
+        files.append(src)
+    base = Path(tempfile.gettempdir())
+    packed = sum(f.stat().st_size for f in files)
+    if packed * 2 >= DECOMPRESS_NOTE:  # (minutes for tens of GB: said before, not after)
+        import warnings
+
+        from ..errors import LtmapWarning
+
+        warnings.warn(LtmapWarning(f"ROS 2 bag {folder} is compressed file by file: decompressing its {len(files)} "
+                                   f"file{'s' if len(files) > 1 else ''} ({human(packed)} compressed) into {base} "
+                                   f"first (removed at the end; TMPDIR chooses the folder)"), stacklevel=2)  # fmt: skip
+    tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=base))
+    written = 0
+    try:
+        for src in files:
+            dst = tmp / (src.stem if src.suffix == ".zstd" else src.name)
+            with src.open("rb") as fi, dst.open("wb") as fo:
+                reader = zstandard.ZstdDecompressor().stream_reader(fi, read_across_frames=True)
+                while chunk := reader.read(DECOMPRESS_CHUNK):
+                    free = shutil.disk_usage(tmp).free
+                    if free - len(chunk) < DECOMPRESS_KEEP_FREE:
+                        raise LogReadError(
+                            f"ROS 2 bag {folder} is compressed file by file and is read from a decompressed copy: "
+                            f"after {human(written + len(chunk))}, the copy would leave less than "
+                            f"{human(DECOMPRESS_KEEP_FREE)} free in {base} ({human(free)} free); set TMPDIR to a folder on "
+                            f"a disk with room, or convert the bag once to an uncompressed one (`ros2 bag convert`)")
+                    fo.write(chunk)
+                    written += len(chunk)
+        meta = dict(info)
+        meta["compression_mode"], meta["compression_format"] = "", ""
+        plain = [Path(n).name.removesuffix(".zstd") for n in names]
+        meta["relative_file_paths"] = plain
+        if isinstance(meta.get("files"), list):
+            meta["files"] = [{**f, "path": Path(str(f.get("path", ""))).name.removesuffix(".zstd")}
+                             if isinstance(f, dict) else f for f in meta["files"]]  # fmt: skip
+        import yaml
+
+        (tmp / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": meta}, sort_keys=False))
+    except BaseException as err:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(err, zstandard.ZstdError):
+            raise LogReadError(f"ROS 2 bag {folder}: {src.name} is not a readable zstd stream ({first_line(err, 120)}); "
+                               f"the file is damaged") from None  # fmt: skip
+        if isinstance(err, OSError) and err.errno == errno.ENOSPC:
+            raise LogReadError(f"ROS 2 bag {folder} is compressed file by file and is read from a decompressed copy: "
+                               f"the disk of {base} is full; set TMPDIR to a folder on a disk with room, or convert the "
+                               f"bag once to an uncompressed one (`ros2 bag convert`)") from None  # fmt: skip
+        raise
+    return tmp
+
+
 def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
     from .safe_yaml import MAX_YAML_BYTES, check_regular_file
 
+    if path.is_dir() and _compression(info := _bag_info(path))[0] == "file":
+        copy = _decompressed_copy(path, info)
+        try:
+            sources = _open_ros2(copy, max_bytes)
+        except BaseException:
+            shutil.rmtree(copy, ignore_errors=True)
+            raise
+        shared = SharedDir(copy, len(sources))
+        for src in sources:
+            src.temp_dir = shared
+        return sources
     mcaps = storage_files(path, ".mcap") if path.is_dir() else []
     if mcaps:  # mcap storage: the mcap package streams it, and reads what a cut-off file still has
         for m in mcaps:

@@ -27,7 +27,7 @@ import numpy as np
 from ..analysis.hints import body_frame_suspect, clock_apart
 from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
-from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError
+from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError, human
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
 from ..io.frames import DepthFrame, OdometrySample, TfSample
@@ -35,7 +35,7 @@ from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
 from ..outputs.snapshots import load_resume
-from ..static.memory import human, lattice_bytes
+from ..static.memory import lattice_bytes
 from ..viz.plots import MAX_HISTORY_EVENTS
 from .clock import Ticker
 from .executor import OrderedExecutor

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import PlanError
+from ..errors import human as _human
 from ..io.mapfile import DEFAULT_MAX_CELLS, GridMap, write_map
 from ..io.static_layer import MAP_YAML, StaticLayer, layer_from_grid, trinary, write_static_layer
 from .memory import BUILD_BYTES_PER_CELL as BYTES_PER_CELL
-from .memory import human as _human
 from .rasterize import Lattice, lines_to_segments, outline_lines, polygon_mask, segments_mask, thin_parts
 from .svgplan import Plan, PlanShape
 

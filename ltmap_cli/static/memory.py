@@ -17,12 +17,6 @@ LATTICE_BYTES_PER_CELL = 88  # measured peak (tracemalloc): 86 per lattice cell,
 DEFAULT_MAX_STATIC_MB = 2048.0  # replay.max_static_mb: S of ~ 250 m x 250 m at 0.05 m
 
 
-def human(n: float) -> str:
-    for unit in ("B", "KB", "MB", "GB", "TB"):
-        if n < 1024 or unit == "TB":
-            return f"{n:.1f} {unit}"
-        n /= 1024
-    return f"{n:.1f} TB"
 
 
 def lattice_bytes(width: int, height: int, resolution: float, lattice_resolution: float) -> tuple[int, int]:
@@ -36,4 +30,4 @@ def lattice_bytes(width: int, height: int, resolution: float, lattice_resolution
     return cells, (cells + source) * LATTICE_BYTES_PER_CELL
 
 
-__all__ = ["BUILD_BYTES_PER_CELL", "LATTICE_BYTES_PER_CELL", "DEFAULT_MAX_STATIC_MB", "human", "lattice_bytes"]
+__all__ = ["BUILD_BYTES_PER_CELL", "LATTICE_BYTES_PER_CELL", "DEFAULT_MAX_STATIC_MB", "lattice_bytes"]
