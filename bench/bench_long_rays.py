@@ -27,7 +27,9 @@ DDA steps per frame (voxels each ray passes) and distinct voxels each frame upda
 Configurations (``--configs``, run interleaved): ``projective`` (the default depth integration,
 ``core.projective``), ``exact`` (``map.sensor.depth_integration: exact``: every ray walked whole),
 ``noquiet`` (exact without the quiet blocks), ``serial`` (exact on the reference path: generic
-decoding, one thread), ``rate10`` (exact at 10 depth frames a second). Every configuration's maps
+decoding, one thread), ``rate10`` (exact at 10 depth frames a second), ``1worker`` (the default
+with ``replay.workers: 1``: what the second worker brings). The CPU seconds of each thread (report.json
+``thread_cpu_s``) bound the speed on more cores than this machine has. Every configuration's maps
 are compared with the first's: arrays that differ, and the IoU of O's occupied voxels, of LT's
 and of P's occupied cells; when ``exact`` runs and is not the first, each is also compared with
 it, against the issue's bound for an approximate default (0.99 on O and P).
@@ -37,7 +39,7 @@ under ``bench/.cache``), interleaved with the current code, ``--repeats`` times 
 that the final maps are the same (O log-odds and stamps, D, bit for bit).
 
 Run: python bench/bench_long_rays.py [--scenes room,hall,house] [--before REF] [--repeats N]
-     [--configs exact,projective,serial,noquiet,rate10] [--cli]
+     [--configs exact,projective,serial,noquiet,rate10,1worker] [--cli]
 """
 
 from __future__ import annotations
@@ -204,7 +206,9 @@ CONFIGS = {
     "serial": (False, False, True, EXACT),  # the reference path: generic decoding, one thread, exact
     "before": (True, True, None, {}),  # the code of --before REF, in its default configuration
     "rate10": (True, True, True, {**EXACT, "map.sensor.depth_max_rate": 10.0}),  # exact, depth at 10 Hz
+    "1worker": (True, True, True, {"replay.workers": 1}),  # the default with one ray worker: how it scales
 }
+BOUND_CORES = (2, 4, 8)  # cores the thread CPU times bound the wall time for
 
 
 def child(name: str, log: Path, out: Path) -> None:
@@ -250,7 +254,7 @@ def child(name: str, log: Path, out: Path) -> None:
         "name": name, "wall_s": wall, "cpu_s": (ru1.ru_utime + ru1.ru_stime) - (ru0.ru_utime + ru0.ru_stime),
         "process_s": time.perf_counter() - t_proc, "code": ltmap_cli.__file__, "log_s": rep["log_duration_s"],
         "speed": rep["log_duration_s"] / wall, "stage_s": rep.get("stage_s", {}),
-        "peak_mb": ru1.ru_maxrss / 1024.0,
+        "peak_mb": ru1.ru_maxrss / 1024.0, "thread_cpu_s": rep.get("thread_cpu_s"), "workers": rep.get("ray_workers"),
         "quiet_blocks": int(lmap._quiet.quiet.sum()) if getattr(lmap, "_quiet", None) is not None else 0,
     }), flush=True)
 
@@ -417,6 +421,22 @@ def main() -> None:
               f"{fast['speed']:.2f} | {min(r['wall_s'] for r in rs):.2f} | {best['cpu_s']:.1f} | "
               + " | ".join(f"{best['stage_s'].get(x, 0.0):.2f}" for x in stages)
               + f" | {best.get('quiet_blocks', 0)} | {max(r['peak_mb'] for r in rs):.0f} |")
+    print()
+    print("CPU seconds by thread (the replay of least CPU), and what they bound the replay's speed to on more cores")
+    print("(an upper bound: log time over the largest of the map thread's CPU, the reader's, and the whole CPU "
+          "shared by the cores; only this machine's cores are measured):")
+    for (s, n), rs in results.items():
+        best = min(rs, key=lambda r: r["cpu_s"])
+        tc = best.get("thread_cpu_s")
+        if not tc:  # (code before the report had it)
+            continue
+        main, reader, workers = tc["main"], tc["reader"], tc["ray_workers"]
+        bounds = []
+        for cores in BOUND_CORES:
+            wall = max(main, reader, tc["process"] / cores)
+            bounds.append(f"{cores} cores <= {best['log_s'] / wall:.1f}x")
+        print(f"  {s} {n}: main {main:.2f}, reader {reader:.2f}, ray workers {workers:.2f} ({best.get('workers')} "
+              f"workers), process {tc['process']:.2f}; " + ", ".join(bounds))
     print()
     for s in scenes:
         ref = results.get((s, "serial"), results.get((s, names[0])))[0]

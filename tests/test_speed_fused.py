@@ -303,9 +303,13 @@ def test_any_number_of_ray_workers_gives_the_serial_map(tmp_path):
         pytest.skip("house sample missing")
     serial, rep_s = _replay(HOUSE, tmp_path / "serial", fast=True, threads=False)
     assert rep_s["ray_workers"] == 0
+    cpu = rep_s["thread_cpu_s"]  # serial: everything on the main thread
+    assert cpu["ray_workers"] == 0 and cpu["reader"] == 0 and 0 < cpu["main"] <= cpu["process"] + 0.01
     for n in (5, 1):
         run, rep = _replay(HOUSE, tmp_path / f"w{n}", fast=True, threads=True, workers=n)
         assert rep["ray_workers"] == n
+        cpu = rep["thread_cpu_s"]
+        assert min(cpu.values()) > 0 and cpu["main"] + cpu["reader"] + cpu["ray_workers"] <= cpu["process"] + 0.05
         _same_maps(serial.lmap, run.lmap)
         assert rep["events"]["list"] == rep_s["events"]["list"]
 

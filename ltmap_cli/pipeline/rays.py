@@ -36,6 +36,7 @@ class CastFrame:
     rays_s: float
     cast_s: float
     filtered_pixels: int  # flying pixels dropped, or -1 when the filter did not run
+    cpu_s: float  # CPU time of the thread that cast it, for this frame
     projection: DepthProjection | None = None  # a depth frame in projective mode (apply_voxels makes its misses)
 
 
@@ -47,7 +48,7 @@ class FrameCaster:
         self.fast = fast
 
     def cast(self, frame, T: np.ndarray, robot: np.ndarray | None) -> CastFrame:
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.thread_time()
         dropped = -1
         if self.replay.depth_outlier_filter and isinstance(frame, (DepthFrame, RawDepthFrame)):
             frame, dropped = self.filter_depth(frame)
@@ -70,7 +71,7 @@ class FrameCaster:
         else:
             (hits, misses), projection = self.lmap.frame_voxels(T[:3, 3], ends, kind), None
         return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped,
-                         projection)  # fmt: skip
+                         time.thread_time() - c0, projection)  # fmt: skip
 
     def depth_raw_rays(self, frame: RawDepthFrame, T, robot):
         k, sc = frame.intrinsics, self.sensor

@@ -19,6 +19,8 @@ def open_reader(stream, stage: Counter, threads: bool):
 class TimedIter:
     """Iterate a frame stream in this thread, adding the time spent in it to ``stage["read"]``."""
 
+    cpu_s = 0.0  # (its CPU time is the consumer's thread's)
+
     def __init__(self, stream, stage: Counter):
         self.stream = stream
         self.stage = stage
@@ -53,6 +55,7 @@ class ReaderThread:
     def __init__(self, stream, stage: Counter):
         self.stream = stream
         self.stage = stage
+        self.cpu_s = 0.0  # the reader thread's CPU time, once it has ended
         self.q: queue.Queue = queue.Queue(maxsize=self.DEPTH)
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="ltmap-reader", daemon=True)
@@ -69,6 +72,7 @@ class ReaderThread:
 
     def _run(self) -> None:
         busy = 0.0
+        c0 = time.thread_time()
         batch: list = []
         try:
             it = iter(self.stream)
@@ -94,6 +98,7 @@ class ReaderThread:
             self._put(("error", err))
         finally:
             self.stage["read_thread"] += busy
+            self.cpu_s = time.thread_time() - c0
             close = getattr(self.stream, "close", None)
             if close is not None and self.stop.is_set():
                 close()

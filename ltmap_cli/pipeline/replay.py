@@ -177,6 +177,8 @@ class Replay:
         self._window_start_ns = 0  # the first log time mapped (the log's first message, or replay.start_s after it)
         self._warm = False
         self._stop = threading.Event()
+        self._workers_cpu_s = 0.0  # CPU seconds of the ray workers (report.json thread_cpu_s)
+        self._reader_cpu_s = 0.0
         self._axes_checked: set[str] = set()  # depth topics whose frame's axes were looked at (_depth_axes)
 
     def interrupt(self) -> None:
@@ -187,6 +189,7 @@ class Replay:
 
     def run(self) -> dict:
         self._t_wall0 = time.perf_counter()
+        self._cpu0 = (time.thread_time(), time.process_time())
         try:
             return self._run()
         except BaseException:
@@ -319,6 +322,7 @@ class Replay:
                     self._report_progress(end_ns, force=True)
             finally:
                 reader.close()
+                self._reader_cpu_s = reader.cpu_s
                 self.executor.close()
             stats = logs.stats
             inputs = {
@@ -422,6 +426,9 @@ class Replay:
             mapping_speed_vs_real_time=round(total / mapping_wall, 2) if mapping_wall > 0 else None,
             stage_s=timer.rounded(),
             ray_workers=self.executor.workers,
+            thread_cpu_s={"main": round(time.thread_time() - self._cpu0[0], 3),
+                          "reader": round(self._reader_cpu_s, 3), "ray_workers": round(self._workers_cpu_s, 3),
+                          "process": round(time.process_time() - self._cpu0[1], 3)},  # fmt: skip
             ticks=lmap.tick_index,
             peak_memory_mb=round(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, 1),
             map_memory_mb=round(lmap.nbytes() / 2**20, 1),
@@ -529,6 +536,8 @@ class Replay:
             timer.add("rays_wait", wait_s)
         timer.add("rays", cast.rays_s)
         timer.add("cast", cast.cast_s)
+        if wait_s is not None:  # cast in a worker thread
+            self._workers_cpu_s += cast.cpu_s
         t0 = time.perf_counter()
         r = run.lmap.apply_voxels(cast.hits, cast.misses, cast.n_rays, cast.projection)
         integrate_s = time.perf_counter() - t0

@@ -33,6 +33,11 @@ class Report:
     mapping_speed_vs_real_time: float | None
     stage_s: dict  # stage -> wall seconds (pipeline/timing.py)
     ray_workers: int  # threads that computed the frames' rays (replay.workers; 0: the serial path)
+    # CPU seconds by thread up to the report: the map thread ("main": integration, ticks, outputs,
+    # and the rays too on the serial path), the log reader, the ray workers summed, the whole process
+    # (numba and numpy threads of their own included). With more cores the wall time tends to the
+    # largest of main, reader and ray_workers / workers.
+    thread_cpu_s: dict
     ticks: int
     stopped_at: str | None  # where a damaged or cut-off log stopped being read
     window: dict | None  # --start / --end: the log times mapped (s from the log's first message), else None
