@@ -21,7 +21,10 @@ with the space observed"), the allocated blocks, and the mean cost per frame (la
 per tick in each fifth of the run: with the map growing from nothing to the whole floor, the
 last fifth costs what the first does when the cost does not grow with the map.
 
-Run: python bench/bench_scale.py [--rate-depth HZ] [--before REF]
+With ``--snapshots`` the replay writes a snapshot every 60 s of log time (the default), each
+timed: their cost grows with the map.
+
+Run: python bench/bench_scale.py [--rate-depth HZ] [--before REF] [--snapshots]
 """
 
 from __future__ import annotations
@@ -134,17 +137,31 @@ def ensure_log(rate_depth: float) -> Path:
     return bench_replay.simulated_log("scale_office", text, f"the office floor ({duration:.0f} s of log)")
 
 
-def child(log: Path, out: Path) -> None:
+def child(log: Path, out: Path, snapshots: bool = False) -> None:
     import resource
 
     import numpy as np
 
+    import ltmap_cli.pipeline.sinks as sinks
     from ltmap_cli.config import Config
     from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
     cfg = Config()
     cfg.replay.plots = False
-    cfg.replay.snapshot_every = 1e9  # one snapshot at the end: memory of the map, not of snapshots
+    snapshot_s: list[float] = []  # each snapshot's wall time
+    if snapshots:  # the default: a snapshot every 60 s of log time, each timed
+        write = sinks.write_snapshot
+
+        def timed(*a, **k):
+            t0 = time.perf_counter()
+            try:
+                return write(*a, **k)
+            finally:
+                snapshot_s.append(time.perf_counter() - t0)
+
+        sinks.write_snapshot = timed
+    else:
+        cfg.replay.snapshot_every = 1e9  # one snapshot at the end: memory of the map, not of snapshots
     run = Replay(cfg, ReplayRequest([log], out))
     t0 = time.perf_counter()
     rep = run.run()
@@ -161,17 +178,17 @@ def child(log: Path, out: Path) -> None:
         "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0, "map_mb": lmap.nbytes() / 2**20,
         "o_blocks": lmap.O.n_blocks, "o_capacity": lmap.O.max_blocks, "d_blocks": lmap.D.n_blocks,
         "d_capacity": lmap.D.max_blocks, "bbox_blocks": [int(v) for v in (o_keys.max(0) - o_keys.min(0) + 1)],
-        "frames_used": rep["frames_used"], "fifths_ms": fifths, "stage_s": rep["stage_s"],
+        "frames_used": rep["frames_used"], "fifths_ms": fifths, "stage_s": rep["stage_s"], "snapshot_s": snapshot_s,
     }), flush=True)
 
 
-def run_child(log: Path, code: Path | None = None) -> dict:
+def run_child(log: Path, code: Path | None = None, snapshots: bool = False) -> dict:
     out = Path(tempfile.mkdtemp(prefix="bench_scale_"))
     env = dict(os.environ)
     if code is not None:
         env["PYTHONPATH"] = str(code) + os.pathsep + env.get("PYTHONPATH", "")
-    proc = subprocess.run([sys.executable, __file__, "--child", str(log), str(out)], check=True,
-                          capture_output=True, text=True, env=env)
+    proc = subprocess.run([sys.executable, __file__, "--child", str(log), str(out)] + (["--snapshots"] if snapshots else []),
+                          check=True, capture_output=True, text=True, env=env)  # fmt: skip
     r = json.loads(proc.stdout.strip().splitlines()[-1])
     r["out"] = str(out)
     return r
@@ -196,6 +213,9 @@ def report(r: dict, label: str) -> None:
     for topic, f in r["fifths_ms"].items():
         print(f"  {topic:28s} " + "  ".join(f"{v:7.2f}" for v in f) + f"   last/first {f[-1] / max(f[0], 1e-9):.2f}")
     print(f"[{label}] stages (s): {r.get('stage_s')}")
+    if r.get("snapshot_s"):
+        print(f"[{label}] {len(r['snapshot_s'])} snapshots (every 60 s of log and the final one): "
+              f"{sum(r['snapshot_s']):.1f} s in all, each " + ", ".join(f"{x:.2f}" for x in r["snapshot_s"]))
     print(f"[{label}] outputs kept in {r['out']}")
 
 
@@ -204,6 +224,8 @@ def main() -> None:
     ap.add_argument("--rate-depth", type=float, default=2.0, help="depth camera rate in the log, Hz (default 2)")
     ap.add_argument("--before", default="", help="git ref of the code before this work: also run that code "
                     "(extracted under bench/.cache) on the same log, first")
+    ap.add_argument("--snapshots", action="store_true", help="snapshots at the default period (60 s of log), each "
+                    "timed, instead of one at the end")
     args = ap.parse_args()
     log = ensure_log(args.rate_depth)
     import platform
@@ -212,9 +234,9 @@ def main() -> None:
           f"Python {platform.python_version()}")
     print(f"log: {log} ({log.stat().st_size / 2**20:.0f} MiB); load average before {os.getloadavg()[0]:.2f}")
     if args.before:
-        before = run_child(log, bench_replay.code_at(args.before))
+        before = run_child(log, bench_replay.code_at(args.before), args.snapshots)
         report(before, f"before {args.before}")
-    r = run_child(log)
+    r = run_child(log, snapshots=args.snapshots)
     print(f"load average after {os.getloadavg()[0]:.2f}")
     report(r, "now")
     if args.before:
@@ -224,6 +246,6 @@ def main() -> None:
 
 if __name__ == "__main__":
     if len(sys.argv) > 1 and sys.argv[1] == "--child":
-        child(Path(sys.argv[2]), Path(sys.argv[3]))
+        child(Path(sys.argv[2]), Path(sys.argv[3]), "--snapshots" in sys.argv[4:])
     else:
         main()

@@ -291,6 +291,26 @@ def test_a_copy_that_would_fill_the_disk_stops_with_one_line(tmp_path, tmpdir_he
     assert not list(tmpdir_here.iterdir())
 
 
+def test_a_file_left_uncompressed_in_a_bag_compressed_file_by_file_is_read_as_it_is(tmp_path, tmpdir_here):
+    """A recorder stopped before compressing its last file leaves it plain (listed without .zstd)."""
+    import yaml
+    import zstandard
+
+    plain = _all(_log(tmp_path, "ros2-sqlite3", _mixed(), name="plain"))
+    packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
+    z = next(packed.glob("*.zstd"))
+    with z.open("rb") as fi, (packed / z.stem).open("wb") as fo:
+        zstandard.ZstdDecompressor().copy_stream(fi, fo)
+    z.unlink()
+    meta = packed / "metadata.yaml"
+    doc = yaml.safe_load(meta.read_text())
+    doc["rosbag2_bagfile_information"]["relative_file_paths"] = [z.stem]
+    meta.write_text(yaml.safe_dump(doc))
+    got = _all(packed)
+    assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
+    assert not list(tmpdir_here.iterdir())
+
+
 def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(tmp_path, tmpdir_here):
     packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
     z = next(packed.glob("*.zstd"))

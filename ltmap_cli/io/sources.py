@@ -1049,7 +1049,7 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
 
     import zstandard
 
-    mode, fmt = _compression(info)
+    fmt = _compression(info)[1]
     if fmt != "zstd":
         raise InputError(f"ROS 2 bag {folder}: its files are compressed with {fmt or '(no format named)'!r}; ltmap "
                          f"reads zstd, rosbag2's compressor: decompress it with `ros2 bag convert`")  # fmt: skip
@@ -1080,7 +1080,10 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
         for src in files:
             dst = tmp / (src.stem if src.suffix == ".zstd" else src.name)
             with src.open("rb") as fi, dst.open("wb") as fo:
-                reader = zstandard.ZstdDecompressor().stream_reader(fi, read_across_frames=True)
+                # (a file listed without .zstd, as a recorder stopped before compressing its last
+                # one leaves it, is copied as it is)
+                reader = zstandard.ZstdDecompressor().stream_reader(fi, read_across_frames=True) \
+                    if src.suffix == ".zstd" else fi  # fmt: skip
                 while chunk := reader.read(DECOMPRESS_CHUNK):
                     free = shutil.disk_usage(tmp).free
                     if free - len(chunk) < DECOMPRESS_KEEP_FREE:

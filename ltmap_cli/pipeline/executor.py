@@ -45,7 +45,8 @@ def usable_cores(cgroup_root: Path = CGROUP_ROOT) -> int:
 
 class OrderedExecutor:
     """``submit(payload, fn, *args)``, then ``ready()`` yields ``(payload, result, wait_s)`` in
-    submission order: all jobs beyond ``IN_FLIGHT``, and finished ones at the head. Without
+    submission order: all jobs beyond ``in_flight`` (default: 4 per worker, at least
+    ``IN_FLIGHT``), and finished ones at the head. Without
     threads, ``fn`` runs at submission and ``ready()`` yields it at once (``wait_s`` None)."""
 
     def __init__(self, threads: bool, workers: int = 0, in_flight: int = 0):
