@@ -21,6 +21,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from click.testing import CliRunner
 
@@ -608,3 +609,72 @@ def test_simulate_follows_the_same_rules(tmp_path):
     r = CliRunner().invoke(cli, ["simulate", str(scenario), "-o", str(bag), "--format", "ros2", "-q", "--seed", "2"])
     assert r.exit_code == 0, r.output  # ltmap's own bag: replaced without --force
     assert OutputFolder.completed(bag)["seed"] == 2
+
+
+def test_a_killed_replays_last_snapshot_is_kept_with_the_command_that_maps_the_rest(tmp_path):
+    """A replay killed (SIGKILL) after its first periodic snapshots: the next run into the same
+    folder removes the killed run's staging folder, as always, but first keeps its last state
+    as OUT.killed_run_state.npz and says so, with the --start that maps the rest of the log (the
+    log time its snapshot reached) and the --resume that carries its long-term layer on. That
+    command runs and maps from there. (Before, hours of replay were lost with the run.)"""
+    from ltmap_cli.io.state import read_state_meta
+
+    out_path = tmp_path / "out"
+    proc = subprocess.Popen(ltmap("replay", LOG_NEW, "--no-plots", "-q", "--snapshot-every", "2", "-o", out_path),
+                            env=env(), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    assert kill_when(proc, out_path, lambda s: s is not None and (s / "snapshots/state_t000004.0s.npz").exists())
+    kept = tmp_path / "out.killed_run_state.npz"
+    assert not kept.exists() and staging_of(out_path) is not None
+    r = subprocess.run(ltmap("replay", LOG_OLD, "--no-plots", "-q", "--end", "3", "-o", out_path), env=env(),
+                       capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    assert staging_of(out_path) is None and kept.is_file()
+    meta = read_state_meta(kept)
+    mapped = meta["mapped_to_s"]
+    # the snapshot's tick (header time since the first frame), and the record time its frames reached
+    assert meta["log_time_s"] >= 4.0 and abs(mapped - meta["log_time_s"]) < 1.0
+    line = [x for x in r.stderr.splitlines() if "was killed" in x]
+    assert len(line) == 1 and f"--start {mapped:g} --resume {kept}" in line[0], r.stderr
+    rest = tmp_path / "rest"
+    r = subprocess.run(ltmap("replay", LOG_NEW, "--no-plots", "-q", "--start", f"{mapped:g}", "--resume", kept,
+                             "-o", rest), env=env(), capture_output=True, text=True)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    rep = json.loads((rest / "report.json").read_text())
+    assert rep["window"]["start_s"] == pytest.approx(mapped, abs=1e-3)
+    assert rep["resume"]["path"] == str(kept)
+
+
+def test_recover_keeps_the_newest_state_of_a_killed_replay_only(tmp_path):
+    """Unit: of a killed replay's staging folder the final state (a run killed in its last
+    moments) or else the latest periodic one is kept, replacing an older kept one; a staging
+    folder without snapshots (build-static, batch) or with an unreadable one keeps nothing."""
+    import warnings
+
+    from ltmap_cli.io.state import read_state_meta, write_state
+
+    target = tmp_path / "out"
+    target.mkdir()
+
+    def staging(name, states):
+        s = tmp_path / f".out.ltmap-staging-{name}"
+        (s / "snapshots").mkdir(parents=True)
+        for t in states:
+            write_state(s / "snapshots" / f"state_t{t:08.1f}s.npz", {"x": np.zeros(3)},
+                        {"log_time_s": t, "mapped_to_s": t + 0.5})  # fmt: skip
+        return s
+
+    staging("a", [60.0, 120.0, 1200.0])
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        recover(target)
+    kept = tmp_path / "out.killed_run_state.npz"
+    assert read_state_meta(kept)["log_time_s"] == 1200.0
+    assert len(w) == 1 and "--start 1200.5 --resume" in str(w[0].message)
+    s = staging("b", [60.0])
+    (s / "snapshots" / "state_t000120.0s.npz").write_bytes(b"not a zip")  # the newest, unreadable
+    staging("c", [])
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        recover(target)
+    assert read_state_meta(kept)["log_time_s"] == 1200.0 and not w  # kept as it was
+    assert not [n for n in os.listdir(tmp_path) if n.startswith(".out.")]

@@ -92,3 +92,18 @@ def read_state(path: str | Path, max_bytes: int = MAX_STATE_BYTES) -> tuple[dict
     if version > VERSION:
         raise MapFileError(f"state file {p} was written by a newer ltmap (state version {version}); upgrade ltmap")
     return arrays, meta
+
+
+def read_state_meta(path: str | Path) -> dict:
+    """The header of a state file alone (its arrays are not read); {} when it has none readable."""
+    try:
+        with zipfile.ZipFile(path) as zf:
+            info = zf.getinfo("__header__.npy")
+            if info.file_size > 1 << 20:
+                return {}
+            with zf.open(info) as fh:
+                meta = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
+    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, tokenize.TokenError,
+            SyntaxError, NotImplementedError, RuntimeError):  # fmt: skip
+        return {}
+    return meta if isinstance(meta, dict) else {}

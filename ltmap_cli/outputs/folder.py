@@ -318,6 +318,11 @@ def recover(target: Path) -> None:
                 break
     for p in left:
         if p.is_dir() and not p.is_symlink():
+            if p.name[len(prefix):].startswith(STAGING):  # a killed replay's last snapshot is kept
+                from .snapshots import keep_killed_run_state
+
+                with contextlib.suppress(OSError):
+                    keep_killed_run_state(p, target)
             shutil.rmtree(p, ignore_errors=True)
 
 

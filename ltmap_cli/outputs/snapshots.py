@@ -22,6 +22,7 @@ output folder (its ``snapshots/state_final.npz``). ``diff`` and ``plan`` read a 
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -52,6 +53,39 @@ def ot_logodds_to_lt(values: np.ndarray, occupied_thresh: float) -> np.ndarray:
 
 def snapshot_name(t_s: float | None) -> str:
     return "final" if t_s is None else f"t{t_s:08.1f}s"
+
+
+KILLED_RUN_STATE = ".killed_run_state.npz"  # beside OUT: the last snapshot of a replay into OUT that was killed
+
+
+def keep_killed_run_state(staging: Path, target: Path) -> None:
+    """``staging`` is what a replay into ``target`` left when it was killed (the next run into it
+    removes it): keep its last snapshot's state as ``<target>.killed_run_state.npz`` (a newer
+    one replaces it), and say how to map the rest of the log from there, so hours of replay are
+    not lost with the run."""
+    import warnings
+
+    from ..io.state import read_state_meta
+
+    folder = staging / SNAPSHOTS
+    if not folder.is_dir():
+        return
+    states = sorted(folder.glob("state_t*.npz"))  # t%08.1f: in time order
+    final = folder / f"state_{snapshot_name(None)}.npz"
+    best = final if final.is_file() else (states[-1] if states else None)
+    if best is None:
+        return
+    meta = read_state_meta(best)
+    if not meta:
+        return
+    kept = target.parent / (target.name + KILLED_RUN_STATE)
+    os.replace(best, kept)
+    mapped = meta.get("mapped_to_s")
+    rest = (f"`ltmap replay LOG --start {mapped:g} --resume {kept} -o <a folder>` maps the rest of its log onto its "
+            f"long-term layer" if isinstance(mapped, (int, float)) else f"--resume {kept} starts from it")
+    where = f" (the sensor frames up to {mapped:g} s of log time)" if isinstance(mapped, (int, float)) else ""
+    warnings.warn(LtmapWarning(f"a replay into {target} was killed before it finished; its last snapshot{where} is "
+                               f"kept as {kept}: {rest}"), stacklevel=2)  # fmt: skip
 
 
 def final_state() -> str:

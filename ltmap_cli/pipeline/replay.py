@@ -536,6 +536,7 @@ class Replay:
             timer.add("rays_wait", wait_s)
         timer.add("rays", cast.rays_s)
         timer.add("cast", cast.cast_s)
+        run.mapped_log_ns = max(run.mapped_log_ns, placed.log_ns)
         if wait_s is not None:  # cast in a worker thread
             self._workers_cpu_s += cast.cpu_s
         t0 = time.perf_counter()

@@ -46,6 +46,7 @@ class Placed:
     T: np.ndarray
     robot: np.ndarray | None
     lookup_s: float
+    log_ns: int = 0  # when the frame was logged (record time)
 
 
 @dataclass
@@ -123,17 +124,17 @@ class Scheduler:
 
     def feed(self, topic: str, log_ns: int, item) -> Iterator[TfSeen | Placed | Skipped]:
         if isinstance(item, (TfSample, OdometrySample)):
-            for t, frame in self.hold.outdated_by(self.tf, item):
-                yield self._place(t, frame)
+            for t, frame, at in self.hold.outdated_by(self.tf, item):
+                yield self._place(t, frame, at)
             t0 = time.perf_counter()
             self.tf.add(item)
             self.hold.took_tf(item)
             self._time("tf", t0)
             yield TfSeen(item)
         else:
-            self.hold.push(item.stamp_ns, log_ns, (topic, item))
-        for t, frame in self.hold.release(log_ns):
-            yield self._place(t, frame)
+            self.hold.push(item.stamp_ns, log_ns, (topic, item, log_ns))
+        for t, frame, at in self.hold.release(log_ns):
+            yield self._place(t, frame, at)
 
     def add_localized(self, sample: TfSample) -> TfSeen:
         """A map -> odom estimate of the localization pre-pass, taken in as if recorded (its edge
@@ -142,8 +143,8 @@ class Scheduler:
         return TfSeen(sample, source="localize")
 
     def flush(self) -> Iterator[Placed | Skipped]:
-        for t, frame in self.hold.flush():
-            yield self._place(t, frame)
+        for t, frame, at in self.hold.flush():
+            yield self._place(t, frame, at)
 
     def _time(self, stage: str, t0: float) -> float:
         dt = time.perf_counter() - t0
@@ -165,14 +166,14 @@ class Scheduler:
             self.fixed_later = (self.request, sensor_frames)
         self.base_frame = choose_base_frame(self.tf.frames, self.base_request)
 
-    def _place(self, topic: str, frame) -> Placed | Skipped:
+    def _place(self, topic: str, frame, log_ns: int) -> Placed | Skipped:
         t0 = time.perf_counter()
         if self.fixed_frame is None:
-            self._choose_frames({frame.frame_id, *(f.frame_id for _, f in self.hold.payloads())})
+            self._choose_frames({frame.frame_id, *(f.frame_id for _, f, _ in self.hold.payloads())})
         if not frame.frame_id:
             return Skipped(topic, f"{topic}: message has an empty header.frame_id", frame)
         T, reason = self.tf.try_lookup(self.fixed_frame, frame.frame_id, frame.stamp_ns)
         if T is None:
             return Skipped(topic, reason, frame)
         robot, _ = self.tf.try_lookup(self.fixed_frame, self.base_frame, frame.stamp_ns)
-        return Placed(topic, frame, T, robot, self._time("tf", t0))
+        return Placed(topic, frame, T, robot, self._time("tf", t0), log_ns)

@@ -88,6 +88,7 @@ class RunState:
         self.out = out  # where files are written (a staging folder)
         self.final = final  # the folder the user named: paths in the report
         self.log_start_ns = 0
+        self.mapped_log_ns = 0  # the latest record time of a sensor frame integrated so far
         self.fixed_frame: str | None = None
         self.robot_xy: tuple[float, float] | None = None
         self.trajectory = Track()  # (t_s, x, y) of the robot per frame
@@ -320,7 +321,12 @@ class SnapshotSink(Sink):
         return {"snapshots": self.written}
 
     def _write(self, run, t_s: float | None) -> None:
-        paths = write_snapshot(run.lmap, run.out / self.FOLDER, t_s, {"fixed_frame": run.fixed_frame})
+        # mapped_to_s: the log time (s from the log's first message) up to which the sensor frames
+        # are in this snapshot, the --start that maps the rest (a killed run's last snapshot is
+        # kept for that: outputs.folder.recover)
+        mapped = round((run.mapped_log_ns - run.log_start_ns) / NS, 3) if run.mapped_log_ns else None
+        paths = write_snapshot(run.lmap, run.out / self.FOLDER, t_s, {"fixed_frame": run.fixed_frame,
+                                                                      "mapped_to_s": mapped})  # fmt: skip
         final = run.final / self.FOLDER
         self.written.append({"log_time_s": t_s, **{k: str(final / Path(v).name) for k, v in paths.items()}})
 
