@@ -53,8 +53,14 @@ def norm(frame: str) -> str:
     return frame.strip().lstrip("/").strip()
 
 
+def _unit(q: np.ndarray) -> np.ndarray:
+    """``q / np.linalg.norm(q)``, the same bits (norm is sqrt(q . q)), without norm's overhead
+    (a few microseconds a call: 4 % of the map thread's time, in the tf lookups)."""
+    return q / math.sqrt(q.dot(q))
+
+
 def quat_to_matrix(q: np.ndarray) -> np.ndarray:
-    x, y, z, w = q / np.linalg.norm(q)
+    x, y, z, w = _unit(q)
     return np.array([
         [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
         [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
@@ -72,14 +78,13 @@ def rpy_to_quat(roll: float, pitch: float, yaw: float) -> tuple[float, float, fl
 
 
 def slerp(q0: np.ndarray, q1: np.ndarray, u: float) -> np.ndarray:
-    q0 = q0 / np.linalg.norm(q0)
-    q1 = q1 / np.linalg.norm(q1)
+    q0 = _unit(q0)
+    q1 = _unit(q1)
     d = float(np.dot(q0, q1))
     if d < 0.0:  # shortest path
         q1, d = -q1, -d
     if d > 0.9995:
-        q = q0 + u * (q1 - q0)
-        return q / np.linalg.norm(q)
+        return _unit(q0 + u * (q1 - q0))
     theta = math.acos(min(d, 1.0))
     s = math.sin(theta)
     return (math.sin((1 - u) * theta) / s) * q0 + (math.sin(u * theta) / s) * q1
