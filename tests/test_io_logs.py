@@ -273,7 +273,7 @@ def test_a_bag_compressed_file_by_file_is_read_from_a_copy_removed_at_the_end(tm
 
 
 def test_a_copy_that_would_fill_the_disk_stops_with_one_line(tmp_path, tmpdir_here, monkeypatch):
-    """The copy watches the disk as it fills: once it would leave less than DECOMPRESS_KEEP_FREE
+    """The copy watches the disk as it fills: once it would leave less than KEEP_FREE_BYTES
     (here: all but 1 kB of what is free), one line says where, how much, and what to do (TMPDIR,
     `ros2 bag convert`), and nothing is left in TMPDIR. (rosbags' own copy ran into ENOSPC,
     reported as a corrupt bag; a few kB of zstd can claim terabytes.)"""
@@ -282,7 +282,7 @@ def test_a_copy_that_would_fill_the_disk_stops_with_one_line(tmp_path, tmpdir_he
     from ltmap_cli.io import sources
 
     packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
-    monkeypatch.setattr(sources, "DECOMPRESS_KEEP_FREE", shutil.disk_usage(tmpdir_here).free - 1024)
+    monkeypatch.setattr(sources, "KEEP_FREE_BYTES", shutil.disk_usage(tmpdir_here).free - 1024)
     with pytest.raises(LogReadError) as err:
         open_logs(packed)
     text = str(err.value)

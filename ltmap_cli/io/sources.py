@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from ..errors import InputError, LogReadError, first_line, human, shown
+from .atomic import KEEP_FREE_BYTES
 from .bounded import (
     DEFAULT_MAX_MESSAGE_MB,
     DecompressError,
@@ -1032,7 +1033,6 @@ def _message_compression(folder: Path) -> str | None:
     return "zstd"
 
 
-DECOMPRESS_KEEP_FREE = 1 << 30  # a per-file compressed bag's copy leaves this much of its disk free
 DECOMPRESS_CHUNK = 8 << 20
 DECOMPRESS_NOTE = 256 << 20  # a copy of about this much or more is said before it is made
 
@@ -1043,7 +1043,7 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
     new folder under the temporary directory (``TMPDIR``), beside a metadata.yaml that says
     they are not compressed; returns it. sqlite3 cannot read a stream, and
     an MCAP is read by seeking. The disk is watched as it fills: the copy stops with one line
-    when it would leave less than ``DECOMPRESS_KEEP_FREE`` (a few kB of zstd can claim terabytes),
+    when it would leave less than ``KEEP_FREE_BYTES`` (a few kB of zstd can claim terabytes),
     instead of filling it (rosbags' own copy failed with ENOSPC, read as a corrupt bag)."""
     import tempfile
 
@@ -1086,11 +1086,11 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
                     if src.suffix == ".zstd" else fi  # fmt: skip
                 while chunk := reader.read(DECOMPRESS_CHUNK):
                     free = shutil.disk_usage(tmp).free
-                    if free - len(chunk) < DECOMPRESS_KEEP_FREE:
+                    if free - len(chunk) < KEEP_FREE_BYTES:
                         raise LogReadError(
                             f"ROS 2 bag {folder} is compressed file by file and is read from a decompressed copy: "
                             f"after {human(written + len(chunk))}, the copy would leave less than "
-                            f"{human(DECOMPRESS_KEEP_FREE)} free in {base} ({human(free)} free); set TMPDIR to a folder on "
+                            f"{human(KEEP_FREE_BYTES)} free in {base} ({human(free)} free); set TMPDIR to a folder on "
                             f"a disk with room, or convert the bag once to an uncompressed one (`ros2 bag convert`)")
                     fo.write(chunk)
                     written += len(chunk)

@@ -51,6 +51,7 @@ class Report:
     static: dict | None
     resume: dict | None
     snapshots: list = field(default_factory=list)  # SnapshotSink
+    snapshots_skipped_low_disk: int = 0  # periodic snapshots left out: the output's disk was nearly full
     events: dict | None = None  # EventsSink
     processing_latency_ms: dict | None = None  # MetricsSink
     localization: dict | None = None  # LocalizationSink (--localize)

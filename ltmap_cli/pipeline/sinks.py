@@ -23,7 +23,7 @@ from ..analysis.plan_tracker import PlanTracker
 from ..core.grid import band_k_range, coord_to_pos
 from ..core.layers import LayeredMap
 from ..core.projection import FootprintTrace, Projection, project, static_fills, virtual_scan
-from ..io.atomic import write_text_atomic
+from ..io.atomic import KEEP_FREE_BYTES, write_text_atomic
 from ..io.frames import OdometrySample, ScanFrame, TfSample
 from ..io.mapfile import GridMap, write_map
 from ..io.transforms import norm
@@ -310,15 +310,44 @@ class SnapshotSink(Sink):
         self.every_ns = int(round(cfg.replay.snapshot_every * NS))
         self.next_ns = self.every_ns
         self.written: list[dict] = []
+        self.last_bytes = 0  # the last snapshot's size
+        self.skipped = 0  # periodic snapshots left out for want of disk
+        self.every_s = cfg.replay.snapshot_every
 
     def on_tick(self, run, tick) -> None:
         if tick.run_ns >= self.next_ns:
-            self._write(run, tick.run_ns / NS)
+            if self._room(run, tick.run_ns / NS):
+                self._write(run, tick.run_ns / NS)
             self.next_ns += self.every_ns
+
+    def _room(self, run, t_s: float) -> bool:
+        """Whether the disk of the output folder has room for this periodic snapshot and still for
+        what the run's end writes (the final snapshot, the maps): at least KEEP_FREE_BYTES
+        and 3 snapshots the size of the last one. Hours of log write hundreds of snapshots;
+        filling the disk would fail the whole run at its end, so the periodic ones stop (said
+        once) and start again when room comes back."""
+        import shutil
+
+        free = shutil.disk_usage(run.out).free
+        need = max(KEEP_FREE_BYTES, 3 * self.last_bytes)
+        if free >= need:
+            return True
+        if not self.skipped:
+            import warnings
+
+            from ..errors import LtmapWarning, human
+
+            warnings.warn(LtmapWarning(
+                f"the disk of {run.final} has {human(free)} free: the snapshots every {self.every_s:g} s stop at "
+                f"{t_s:.0f} s of log while it has less than {human(need)} (the final snapshot, the maps and the "
+                f"report are still written); free some space, or give --snapshot-every a longer period"),
+                stacklevel=2)  # fmt: skip
+        self.skipped += 1
+        return False
 
     def finish(self, run) -> dict:
         self._write(run, None)
-        return {"snapshots": self.written}
+        return {"snapshots": self.written, "snapshots_skipped_low_disk": self.skipped}
 
     def _write(self, run, t_s: float | None) -> None:
         # mapped_to_s: the log time (s from the log's first message) up to which the sensor frames
@@ -327,6 +356,7 @@ class SnapshotSink(Sink):
         mapped = round((run.mapped_log_ns - run.log_start_ns) / NS, 3) if run.mapped_log_ns else None
         paths = write_snapshot(run.lmap, run.out / self.FOLDER, t_s, {"fixed_frame": run.fixed_frame,
                                                                       "mapped_to_s": mapped})  # fmt: skip
+        self.last_bytes = sum(Path(v).stat().st_size for v in paths.values())
         final = run.final / self.FOLDER
         self.written.append({"log_time_s": t_s, **{k: str(final / Path(v).name) for k, v in paths.items()}})
 
