@@ -322,6 +322,16 @@ def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(
     z.unlink()
     with pytest.raises(InputError, match=f"{z.name} .in metadata.yaml. is missing"):
         open_logs(packed)
+    # a hostile metadata.yaml listing one file 100,000 times, or paths out of the folder: each
+    # name is one file of the folder, decompressed once
+    import yaml
+
+    meta = packed / "metadata.yaml"
+    doc = yaml.safe_load(meta.read_text())
+    doc["rosbag2_bagfile_information"]["relative_file_paths"] = ["../../etc/" + z.name] * 100_000
+    meta.write_text(yaml.safe_dump(doc))
+    with pytest.raises(InputError, match=f"{z.name} .in metadata.yaml. is missing"):
+        open_logs(packed)
     assert not list(tmpdir_here.iterdir())
 
 

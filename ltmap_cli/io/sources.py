@@ -1057,11 +1057,12 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
     if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
         raise LogReadError(f"ROS 2 bag {folder}: metadata.yaml lists no relative_file_paths; the bag folder is "
                            f"incomplete")  # fmt: skip
+    names = list(dict.fromkeys(Path(n).name for n in names))  # (a name listed twice is one file, read once)
     files = []
     for name in names:
-        src = folder / Path(name).name  # (rosbag2 lists names in the folder: a path elsewhere is not read)
+        src = folder / name  # (rosbag2 lists names in the folder: a path elsewhere is not read)
         if not src.is_file():
-            raise InputError(f"ROS 2 bag {folder}: {Path(name).name} (in metadata.yaml) is missing; the bag folder "
+            raise InputError(f"ROS 2 bag {folder}: {name} (in metadata.yaml) is missing; the bag folder "
                              f"is incomplete")  # fmt: skip
         files.append(src)
     base = Path(tempfile.gettempdir())
@@ -1096,7 +1097,7 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
                     written += len(chunk)
         meta = dict(info)
         meta["compression_mode"], meta["compression_format"] = "", ""
-        plain = [Path(n).name.removesuffix(".zstd") for n in names]
+        plain = [n.removesuffix(".zstd") for n in names]
         meta["relative_file_paths"] = plain
         if isinstance(meta.get("files"), list):
             meta["files"] = [{**f, "path": Path(str(f.get("path", ""))).name.removesuffix(".zstd")}
