@@ -311,25 +311,33 @@ def test_a_file_left_uncompressed_in_a_bag_compressed_file_by_file_is_read_as_it
     assert not list(tmpdir_here.iterdir())
 
 
-def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(tmp_path, tmpdir_here):
+def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(tmp_path, tmpdir_here, monkeypatch):
+    import yaml
+
+    from ltmap_cli.io import sources
+
+    plain = _all(_log(tmp_path, "ros2-sqlite3", _mixed(), name="plain"))
     packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
     z = next(packed.glob("*.zstd"))
+    # a hostile metadata.yaml listing one file 100,000 times, by paths out of the folder: each
+    # name is the file of that name in the folder, decompressed once
+    meta = packed / "metadata.yaml"
+    doc = yaml.safe_load(meta.read_text())
+    doc["rosbag2_bagfile_information"]["relative_file_paths"] = ["../../etc/" + z.name] * 100_000
+    meta.write_text(yaml.safe_dump(doc))
+    copies = []
+    real = sources._decompressed_copy
+    monkeypatch.setattr(sources, "_decompressed_copy", lambda *a: copies.append(real(*a)) or copies[-1])
+    with open_logs(packed) as logs:
+        assert sorted(p.name for p in copies[0].iterdir()) == sorted([z.stem, "metadata.yaml"])
+        got = list(logs.messages())
+    assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
     data = bytearray(z.read_bytes())
     data[:4] = b"\x00\x01\x02\x03"  # not a zstd frame
     z.write_bytes(bytes(data))
     with pytest.raises(LogReadError, match=f"{z.name} is not a readable zstd stream"):
         open_logs(packed)
     z.unlink()
-    with pytest.raises(InputError, match=f"{z.name} .in metadata.yaml. is missing"):
-        open_logs(packed)
-    # a hostile metadata.yaml listing one file 100,000 times, or paths out of the folder: each
-    # name is one file of the folder, decompressed once
-    import yaml
-
-    meta = packed / "metadata.yaml"
-    doc = yaml.safe_load(meta.read_text())
-    doc["rosbag2_bagfile_information"]["relative_file_paths"] = ["../../etc/" + z.name] * 100_000
-    meta.write_text(yaml.safe_dump(doc))
     with pytest.raises(InputError, match=f"{z.name} .in metadata.yaml. is missing"):
         open_logs(packed)
     assert not list(tmpdir_here.iterdir())
