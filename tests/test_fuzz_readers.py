@@ -1,4 +1,5 @@
-"""Seeded byte mutations of a ROS 1 bag, an MCAP and a ROS 2 db3 (laser, tf and a depth camera
+"""Seeded byte mutations of a ROS 1 bag, an MCAP, a ROS 2 db3 and one compressed file by file
+(its .db3.zstd: ltmap decompresses it into TMPDIR first) (laser, tf and a depth camera
 recorded through image_transport's compressedDepth, PNG and RVL) through ``ltmap info``,
 ``ltmap replay --allow-truncated`` (issue 15) and the same with a window (``--start`` /
 ``--end``: the readers' seeking): the exit status is 0 or 2, never an exception
@@ -23,7 +24,7 @@ from test_replay import room_messages
 
 from ltmap_cli.cli import cli
 
-FORMATS = ("ros1", "mcap-ros2", "ros2-sqlite3")
+FORMATS = ("ros1", "mcap-ros2", "ros2-sqlite3", "ros2-sqlite3-zstd")  # the last compressed file by file
 SEED = 1234
 
 
@@ -35,9 +36,12 @@ def originals(tmp_path_factory) -> dict[str, Path]:
     out = {}
     for fmt in FORMATS:
         kw = {"chunk_size": 4096} if fmt == "mcap-ros2" else {"ros1_chunk_size": 4096} if fmt == "ros1" else {}
-        name = {"ros1": "log.bag", "mcap-ros2": "log.mcap", "ros2-sqlite3": "bag"}[fmt]
-        out[fmt] = write_log(d / name, fmt, msgs, **kw)
-        out[fmt + "-long"] = write_log(d / ("long_" + name), fmt, long_msgs, **kw)
+        name = {"ros1": "log.bag", "mcap-ros2": "log.mcap", "ros2-sqlite3": "bag", "ros2-sqlite3-zstd": "bagz"}[fmt]
+        writer = fmt.removesuffix("-zstd")
+        if fmt.endswith("-zstd"):
+            kw["ros2_compression"] = "file"
+        out[fmt] = write_log(d / name, writer, msgs, **kw)
+        out[fmt + "-long"] = write_log(d / ("long_" + name), writer, long_msgs, **kw)
     return out
 
 
@@ -63,8 +67,8 @@ def _compressed_camera(duration_s: float) -> list:
 
 
 def _target(path: Path) -> Path:
-    """The file to mutate: the bag or .mcap itself, or the ROS 2 bag's .db3."""
-    return next(path.glob("*.db3")) if path.is_dir() else path
+    """The file to mutate: the bag or .mcap itself, or the ROS 2 bag's .db3 (or .db3.zstd)."""
+    return next(f for f in sorted(path.iterdir()) if f.suffix in (".db3", ".zstd")) if path.is_dir() else path
 
 
 def mutate(data: bytes, rng: random.Random) -> tuple[bytes, str]:
