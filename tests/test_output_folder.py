@@ -678,3 +678,8 @@ def test_recover_keeps_the_newest_state_of_a_killed_replay_only(tmp_path):
         recover(target)
     assert read_state_meta(kept)["log_time_s"] == 1200.0 and not w  # kept as it was
     assert not [n for n in os.listdir(tmp_path) if n.startswith(".out.")]
+    # a batch redoes a killed day whole (OutputFolder / tidy with keep_killed=False): nothing kept
+    kept.unlink()
+    staging("d", [60.0])
+    recover(target, keep_killed=False)
+    assert not kept.exists() and not [n for n in os.listdir(tmp_path) if n.startswith(".out.")]

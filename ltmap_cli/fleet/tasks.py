@@ -51,7 +51,7 @@ def run_task(task: StaticTask | DayTask, rerun: bool = False) -> dict:
     where = {"worker": f"{socket.gethostname()}:{os.getpid()}"}
     required = STATIC_OUTPUTS if isinstance(task, StaticTask) else DAY_OUTPUTS
     try:
-        tidy(Path(os.path.abspath(task.out_dir)), task.label)  # what a killed run of this task left beside it
+        tidy(Path(os.path.abspath(task.out_dir)), task.label, keep_killed=False)  # what a killed run of it left
         if not rerun and is_complete(task.out_dir, task.key, required):
             return {"status": UP_TO_DATE, "wall_s": time.perf_counter() - t0, **where}
         _check_ours(task.out_dir)
@@ -92,7 +92,7 @@ def _check_ours(folder: Path) -> None:
 
 def _in_staging(task: StaticTask | DayTask, work) -> None:
     command = "build-static" if isinstance(task, StaticTask) else "replay"
-    with OutputFolder(task.out_dir, command=command, option=task.label) as out:
+    with OutputFolder(task.out_dir, command=command, option=task.label, keep_killed=False) as out:
         work(task, out.staging, out.final)
         doc = {"key": task.key, "task": task.label, "finished": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
         (out.staging / TASK_FILE).write_text(json.dumps(doc, indent=2) + "\n")

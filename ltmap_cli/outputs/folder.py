@@ -80,11 +80,13 @@ class OutputFolder:
     ``commit`` removes the staging folder and leaves ``path`` as it was; an ``OSError`` met while
     writing (a full disk) becomes one ``OutputError`` line naming the final path."""
 
-    def __init__(self, path: str | os.PathLike, command: str, force: bool = False, option: str = "-o"):
+    def __init__(self, path: str | os.PathLike, command: str, force: bool = False, option: str = "-o",
+                 keep_killed: bool = True):  # fmt: skip
         self.final = Path(path)
         self.command = command
         self.force = force
         self.option = option
+        self.keep_killed = keep_killed  # recover(): keep a killed replay's last snapshot (not a batch's: it redoes the day)
         self.staging: Path | None = None
         self.manifest: dict | None = None
         self._lock: _Lock | None = None
@@ -111,7 +113,7 @@ class OutputFolder:
         self._lock = _Lock(parent / f".{target.name}.{LOCK}", label, self.command)
         self._lock.acquire()
         try:
-            recover(target)
+            recover(target, self.keep_killed)
             self._check_replaceable()
             _pause("locked")
             self.staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.{STAGING}", dir=parent))
@@ -285,20 +287,22 @@ def listing(manifest: dict) -> str:
     return ", ".join(top + [f"{d}/ ({n} file{'s' if n != 1 else ''})" for d, n in sorted(folders.items())])
 
 
-def tidy(target: Path, label: str = "") -> None:
+def tidy(target: Path, label: str = "", keep_killed: bool = True) -> None:
     """``recover`` what a killed run left beside the folder ``target``, when no run holds it now
     (a reader's check, or a batch finding a day up to date)."""
     lock = _Lock(target.parent / f".{target.name}.{LOCK}", label or str(target), READER)
     if target.parent.is_dir() and os.access(target.parent, os.W_OK) and lock.try_acquire():
         try:
-            recover(target)
+            recover(target, keep_killed)
         finally:
             lock.release()
 
 
-def recover(target: Path) -> None:
+def recover(target: Path, keep_killed: bool = True) -> None:
     """Under the lock: bring back the old folder if a run was killed between its two renames
-    (``target`` missing, a complete aside), then remove every staging and aside folder left."""
+    (``target`` missing, a complete aside), then remove every staging and aside folder left;
+    first, with ``keep_killed``, keeping a killed replay's last snapshot beside ``target``
+    (``snapshots.keep_killed_run_state``)."""
     parent = target.parent
     if not parent.is_dir():
         return
@@ -318,7 +322,7 @@ def recover(target: Path) -> None:
                 break
     for p in left:
         if p.is_dir() and not p.is_symlink():
-            if p.name[len(prefix):].startswith(STAGING):  # a killed replay's last snapshot is kept
+            if keep_killed and p.name[len(prefix):].startswith(STAGING):  # a killed replay's last snapshot
                 from .snapshots import keep_killed_run_state
 
                 with contextlib.suppress(OSError):
