@@ -17,8 +17,9 @@ from click.testing import CliRunner
 from ltmap_cli.cli import cli
 
 LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "scenarios" / "01_static_object" / "log.mcap"
-PROGRESS = re.compile(
-    r"^\[[#.]+\] +(?P<done>\d+\.\d)/(?P<total>\d+\.\d) s log \| +\d+\.\d frames/s \| +\d+\.\dx real time"
+PROGRESS = re.compile(  # (a log of an hour or more gives its times as clocks: 15:00.0/1:00:00.0 log)
+    r"^\[[#.]+\] +((?P<done>\d+\.\d)/(?P<total>\d+\.\d) s|(?P<cdone>[\d:]+\.\d)/(?P<ctotal>[\d:]+\.\d)) log"
+    r" \| +\d+\.\d frames/s \| +\d+\.\dx real time"
     r"( \| (?P<left>\d+ s|\d+ min \d\d s|\d+ h \d\d min) left)?$"
 )
 
@@ -111,6 +112,7 @@ def test_progress_line_gives_the_time_left_at_the_speed_so_far():
     line = out.getvalue().strip()
     m = PROGRESS.match(line)
     assert m and m["left"] == "5 min 38 s", line
+    assert (m["cdone"], m["ctotal"]) == ("15:00.0", "1:00:00.0")  # an hour of log: clocks, as --start takes them
     assert time_left(36000.0, 8.0) == "1 h 15 min" and time_left(45.0, 1.0) == "45 s" and time_left(-1, 2) == "0 s"
     # no guess in the first seconds (under 5 % of the log), nor once the log is done
     for p in (Progress(60.0, 3600.0, 10, 1.0), Progress(3600.0, 3600.0, 10, 400.0)):

@@ -13,6 +13,45 @@ from ..outputs.folder import output_target
 FD_MARGIN = 64  # open files a run needs besides its logs' (numba's cache, outputs, threads)
 
 
+def clock(seconds: float) -> str:
+    """A log time for a person: ``"1:02:03.5"`` (h:mm:ss), ``"2:03.5"`` (m:ss) under an hour."""
+    neg, s = seconds < 0, abs(seconds)
+    h, rem = divmod(s, 3600.0)
+    m, sec = divmod(rem, 60.0)
+    if round(sec, 1) >= 60.0:  # (59.96 s shows as 1:00.0, not 0:60.0)
+        m, sec = m + 1, 0.0
+        if m >= 60:
+            h, m = h + 1, 0
+    text = f"{int(h)}:{int(m):02d}:{sec:04.1f}" if h else f"{int(m)}:{sec:04.1f}"
+    return "-" + text if neg else text
+
+
+class LogTime(click.ParamType):
+    """Seconds of log time, as a number (``4800``, ``12.5``) or a clock (``1:20:00``, ``80:00``,
+    ``1:20:00.5``): hours of log are easier to give by their clock."""
+
+    name = "SECONDS|H:MM:SS"
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, (int, float)):
+            return float(value)
+        text = str(value).strip()
+        parts = text.split(":")
+        try:
+            if len(parts) > 3 or (len(parts) > 1 and not all(p.strip() for p in parts)):
+                raise ValueError
+            nums = [float(p) for p in parts]
+            if len(nums) > 1 and (any(x < 0 or x != int(x) for x in nums[:-1]) or nums[-1] < 0 or
+                                  any(x >= 60 for x in nums[1:])):  # fmt: skip
+                raise ValueError
+        except ValueError:
+            self.fail(f"{text!r} is not a log time: give seconds (4800) or a clock (1:20:00, 80:00)", param, ctx)
+        total = 0.0
+        for x in nums:
+            total = total * 60.0 + x
+        return total
+
+
 def allow_open_files(logs) -> None:
     """A recording split into many files (``rosbag record --split``, rosbag2 ``--max-bag-duration``:
     a day at one a minute is 1440 files) keeps each file open: the process's soft limit of open

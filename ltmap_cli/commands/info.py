@@ -28,7 +28,7 @@ from ..io import decode as dec
 from ..io import rectify
 from ..io.logs import IMAGE, TruncatedLogError, open_logs
 from ..io.transforms import TfBuffer, choose_base_frame
-from . import allow_open_files, sensor_options
+from . import allow_open_files, clock, sensor_options
 
 NS = 1_000_000_000
 INFO_FULL_BYTES = 1 << 30  # logs up to this size in all are read whole (a few seconds) ...
@@ -336,6 +336,20 @@ def gather(
     return result
 
 
+EPOCH_2001_NS = 978_307_200 * 10**9  # record times after this are wall-clock times (sim time starts near 0)
+
+
+def _utc(start_ns: int, end_ns: int) -> str:
+    """The log's span as UTC dates, when its record times are wall-clock times."""
+    if start_ns < EPOCH_2001_NS:
+        return ""
+    import datetime
+
+    a, b = (datetime.datetime.fromtimestamp(ns / 1e9, datetime.timezone.utc) for ns in (start_ns, end_ns))
+    return f"; {a:%Y-%m-%d %H:%M:%S} .. {b:%H:%M:%S} UTC" if a.date() == b.date() else \
+        f"; {a:%Y-%m-%d %H:%M:%S} .. {b:%Y-%m-%d %H:%M:%S} UTC"  # fmt: skip
+
+
 def render(r: dict) -> str:
     lines = []
     for name, fmt in zip(r["logs"], r["formats"]):
@@ -344,7 +358,8 @@ def render(r: dict) -> str:
         lines.append(f"storage:   {', '.join(r['formats'])}")
     if r["start_ns"] is not None:
         dur = (r["end_ns"] - r["start_ns"]) / 1e9
-        lines.append(f"duration:  {dur:.2f} s  ({r['start_ns'] / 1e9:.3f} .. {r['end_ns'] / 1e9:.3f})")
+        lines.append(f"duration:  {dur:.2f} s{f' ({clock(dur)})' if dur >= 60 else ''}  "
+                     f"({r['start_ns'] / 1e9:.3f} .. {r['end_ns'] / 1e9:.3f}{_utc(r['start_ns'], r['end_ns'])})")
     else:
         lines.append("duration:  - (no messages)")
     total = sum(t["count"] for t in r["topics"].values())

@@ -15,9 +15,10 @@ from ..config import load_config, parse_set, set_dotted
 from ..errors import ConfigError
 from ..outputs.folder import OutputFolder, check_completed_input, listing
 from ..pipeline.replay import Replay, ReplayRequest
-from . import StatusLine, allow_open_files, nonempty_output, sensor_options
+from . import LogTime, StatusLine, allow_open_files, clock, nonempty_output, sensor_options
 
 ETA_AFTER_S = 2.0  # the time left is shown after this much wall time (or 5 % of the log): no wild first guess
+LONG_LOG_S = 3600.0  # a log this long shows its times as clocks (1:02:03.5), as --start / --end take them
 
 
 def time_left(log_left_s: float, speed: float) -> str:
@@ -52,8 +53,10 @@ class ProgressBar(StatusLine):
         frac = min(p.log_done_s / p.log_total_s, 1.0) if p.log_total_s > 0 else 1.0
         fill = int(frac * self.width)
         fps = p.frames / p.wall_s if p.wall_s > 0 else 0.0
+        done = (f"{clock(p.log_done_s):>9}/{clock(p.log_total_s)} log" if p.log_total_s >= LONG_LOG_S else
+                f"{p.log_done_s:7.1f}/{p.log_total_s:.1f} s log")  # fmt: skip
         line = (
-            f"[{'#' * fill}{'.' * (self.width - fill)}] {p.log_done_s:7.1f}/{p.log_total_s:.1f} s log"
+            f"[{'#' * fill}{'.' * (self.width - fill)}] {done}"
             f" | {fps:6.1f} frames/s | {p.speed:5.1f}x real time"
         )
         if frac < 1.0 and p.speed > 0 and (p.wall_s >= ETA_AFTER_S or frac >= 0.05):
@@ -118,11 +121,12 @@ def _xy(text: str, flag: str) -> list[float]:
 @click.option("--cloud-topic", multiple=True, help="PointCloud2 topic to use (repeatable; default: all).")
 @click.option("--depth-topic", multiple=True, help="Depth image topic to use: an Image, or image_transport's "
               ".../compressedDepth or .../compressed (repeatable; default: all, each image once).")
-@click.option("--start", "start_s", type=float, metavar="SECONDS",
-              help="Map the sensor frames from this many seconds of log time after the log's first message "
-              "(tf from a little before); the log is read up to there without mapping it.")
-@click.option("--end", "end_s", type=float, metavar="SECONDS",
-              help="Map up to this many seconds of log time after the log's first message (default: its end).")
+@click.option("--start", "start_s", type=LogTime(),
+              help="Map the sensor frames from this much log time after the log's first message (seconds, or "
+              "a clock: 1:20:00) (tf from a little before); the log is read up to there without mapping it.")
+@click.option("--end", "end_s", type=LogTime(),
+              help="Map up to this much log time after the log's first message (seconds or 1:20:00; default: "
+              "its end).")
 @click.option("--resolution", type=float, help="Voxel size in metres (default 0.05).")
 @click.option("--tick", type=float, help="Update tick of ST/LT in seconds of log time (default 0.2).")
 @click.option("--snapshot-every", type=float, help="Seconds of log time between snapshots (default 60).")
