@@ -98,7 +98,7 @@ class ReplayConfig:
     depth_outlier_filter: bool = False  # drop flying pixels at depth jumps (open3d radius outlier removal)
     depth_outlier_radius: float = 0.02  # m: a jump pixel needs ...
     depth_outlier_min_neighbors: int = 3  # ... this many other points within the radius to stay
-    workers: int = 0  # threads computing the frames' rays (0: one per usable core); the map is the same
+    workers: int = 0  # threads computing the frames' rays (0: one per usable core, at most 8); the map is the same
     localize: bool = False  # --localize: correct map -> odom by scan matching (against --static if given)
     localization: LocalizationConfig = field(default_factory=LocalizationConfig)
 

@@ -251,4 +251,11 @@ def test_the_executor_takes_a_worker_per_usable_core_by_default(monkeypatch):
     ex = OrderedExecutor(True, workers=2)
     assert ex.workers == 2 and ex.keep == executor.IN_FLIGHT  # at least 8 in flight
     ex.close()
+    monkeypatch.setattr(executor, "usable_cores", lambda: 64)  # at most AUTO_WORKERS_MAX by default ...
+    ex = OrderedExecutor(True)
+    assert ex.workers == executor.AUTO_WORKERS_MAX == 8 and ex.keep == 32
+    ex.close()
+    ex = OrderedExecutor(True, workers=12)  # ... as many as asked for
+    assert ex.workers == 12 and ex.keep == 48
+    ex.close()
     assert OrderedExecutor(False).workers == 0

@@ -13,6 +13,9 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 IN_FLIGHT = 8  # frames the workers may compute ahead of integration (at least; 4 per worker)
+AUTO_WORKERS_MAX = 8  # replay.workers 0 takes one per usable core up to this: beyond, the map thread
+# bounds the speed (bench_long_rays: a room's map thread allows about 12x, a hall's 9x), and each
+# frame in flight holds its image and voxels (about 2 MB for 640x480 depth)
 CGROUP_ROOT = Path("/sys/fs/cgroup")
 
 
@@ -50,7 +53,7 @@ class OrderedExecutor:
     threads, ``fn`` runs at submission and ``ready()`` yields it at once (``wait_s`` None)."""
 
     def __init__(self, threads: bool, workers: int = 0, in_flight: int = 0):
-        n = workers if workers > 0 else usable_cores()
+        n = workers if workers > 0 else min(usable_cores(), AUTO_WORKERS_MAX)
         self.workers = n if threads else 0
         self.pool = ThreadPoolExecutor(n, thread_name_prefix="ltmap-rays") if threads else None
         self.keep = (in_flight or max(IN_FLIGHT, 4 * n)) if threads else 0
