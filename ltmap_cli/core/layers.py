@@ -44,7 +44,6 @@ from .projective import (
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
     projective_fill,
-    projective_keys,
     quiet_keys_in_box,
     stale_skips,
 )
@@ -70,6 +69,7 @@ from .raycast import (
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
     STATUS_NEED_CHANGED,
+    apply_mask_misses,
     apply_voxels_kernel,
     classify_rays,
     dedupe_endpoints,
@@ -706,7 +706,6 @@ class LayeredMap:
         self._fq_vid = np.empty(1 << 16, dtype=np.int64)
         self._fq_due = np.empty(1 << 16, dtype=np.int32)
         self._fq_meta = np.zeros(3, dtype=np.int64)
-        self._proj_buffer: np.ndarray | None = None  # projective misses, applied in batches (made at first use)
 
     # -- static layer -------------------------------------------------------------------------
     def set_static(self, static: StaticGrid | None) -> None:
@@ -951,16 +950,8 @@ class LayeredMap:
         self._apply(q, hits, misses, 0, counters)
         if projection is not None and projection.skipped is not None:  # blocks a worker took as quiet
             projection = self._fill_stale(q, projection)
-        if projection is not None:  # the misses the projection makes (core.projective), in batches
-            if self._proj_buffer is None:
-                self._proj_buffer = np.empty(1 << 18, dtype=np.int64)
-            buf = self._proj_buffer
-            nxt = 0
-            while nxt >= 0:
-                o = self.O
-                n, nxt = projective_keys(projection.keys, projection.masks, nxt, o.table_keys, o.table_vals, q.quiet,
-                                         self.quiet_blocks, buf)  # fmt: skip
-                self._apply(q, hits[:0], buf[:n], 1, counters)
+        if projection is not None:  # the misses the projection makes (core.projective), block by block
+            self._apply_masks(q, projection.keys, projection.masks, counters)
         if self.quiet_blocks and q.ch_meta[0]:
             q.update(self, int(q.ch_meta[0]))
         if self.quiet_blocks and projection is not None and projection.box is not None:
@@ -1021,13 +1012,36 @@ class LayeredMap:
             )  # fmt: skip
             if status == STATUS_DONE:
                 break
-            if status == STATUS_NEED_BLOCKS:
-                o.grow()
-                q.fit(o.max_blocks)
-            elif status == STATUS_NEED_CHANGED:
-                q.changed = np.resize(q.changed, 2 * len(q.changed))
-            else:
-                self._grow_tick_buffer()
+            self._grow_for(status, q)
+
+    def _apply_masks(self, q: _QuietBlocks, keys: np.ndarray, masks: np.ndarray, counters: np.ndarray) -> None:
+        """``apply_mask_misses``: the projection's misses, the blocks' masks applied as their
+        voxels listed in key order would be, growing storage as it asks."""
+        sc = self.cfg.sensor
+        start = 0
+        while True:
+            o = self.O
+            status, start = apply_mask_misses(
+                keys, masks, start,
+                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
+                self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
+                sc.miss_logodds, sc.clamp_min_logodds, counters,
+                q.nfree, q.quiet, self.quiet_blocks, q.changed, q.ch_meta,
+            )  # fmt: skip
+            if status == STATUS_DONE:
+                break
+            self._grow_for(status, q)
+
+    def _grow_for(self, status: int, q: _QuietBlocks) -> None:
+        """Grow what an apply kernel stopped for: O's blocks, the quiet blocks' change list, or
+        the tick buffer."""
+        if status == STATUS_NEED_BLOCKS:
+            self.O.grow()
+            q.fit(self.O.max_blocks)
+        elif status == STATUS_NEED_CHANGED:
+            q.changed = np.resize(q.changed, 2 * len(q.changed))
+        else:
+            self._grow_tick_buffer()
 
     def _quiet_sync(self) -> _QuietBlocks:
         """The quiet blocks' state for the map as it is now: made afresh when O was replaced (a

@@ -11,9 +11,9 @@ With ``map.sensor.depth_integration: projective`` a depth frame is integrated in
   onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the camera than
   that pixel's range minus ``band``, or one of the pixels at the rim of its projection is, is a
   miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). It reads no map
-  state, so the worker threads run it; ``projective_keys`` then lists the misses in the thread
-  that owns the map, in frame order, skipping quiet O blocks (all clamped free, no ST or LT: a
-  miss there changes nothing).
+  state, so the worker threads run it; the thread that owns the map applies the blocks' masks
+  in frame order (``core.raycast.apply_mask_misses``), skipping quiet O blocks (all clamped free,
+  no ST or LT: a miss there changes nothing).
 
 It differs from the exact traversal only in free space farther than ``band`` from a return
 (voxels a ray passes but whose centre and rim project onto nearer pixels, voxels beyond the
@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block
+from .grid import BLOCK, BLOCK_BITS, find_block, pack_block
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -506,34 +506,3 @@ def stale_skips(skipped, box, table_keys, table_vals, quiet):
             out[n] = b
             n += 1
     return out[:n]
-
-
-@njit(cache=True, nogil=True)
-def projective_keys(keys, masks, start, table_keys, table_vals, quiet, use_quiet, out):
-    """The misses of ``projective_blocks``' blocks from ``start`` on as packed voxel keys
-    into ``out``, skipping quiet O blocks (``use_quiet``: a miss there changes nothing). Returns
-    (keys written, the block to go on from: -1 when done); stops before a block when fewer than
-    512 slots are left. Reads the map: the thread that owns it, in frame order."""
-    cap = out.shape[0]
-    m = 0
-    for t in range(start, keys.shape[0]):
-        if cap - m < BLOCK * BLOCK * BLOCK:
-            return m, t
-        bi, bj, bk = unpack_block(keys[t])
-        if use_quiet:
-            ob = find_block(table_keys, table_vals, bi, bj, bk)
-            if ob >= 0 and quiet[ob] != 0:
-                continue
-        for wd in range(8):
-            word = masks[t, wd]
-            if word == 0:
-                continue
-            for bit in range(64):
-                if (word >> np.uint64(bit)) & np.uint64(1):
-                    off = wd * 64 + bit
-                    a = off >> (2 * BLOCK_BITS)
-                    c = (off >> BLOCK_BITS) & (BLOCK - 1)
-                    e = off & (BLOCK - 1)
-                    out[m] = pack_block(bi * BLOCK + a, bj * BLOCK + c, bk * BLOCK + e)
-                    m += 1
-    return m, -1

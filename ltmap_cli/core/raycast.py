@@ -398,6 +398,79 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
 
 
 @njit(cache=True, nogil=True)
+def apply_mask_misses(
+    bkeys, masks, start,
+    table_keys, table_vals, block_coords, meta, logodds, stamp,
+    frame_id, tick_first, tb_block, tb_off, tb_meta,
+    miss_lo, lo_min, counters,
+    nfree, quiet, use_quiet, changed, ch_meta,
+):  # fmt: skip
+    """The misses of blocks given as bit masks (``bkeys`` packed block keys, ``masks`` (B, 8)
+    uint64: bit ``off`` of a block's 512, in key order, offsets ascending): what
+    ``apply_voxels_kernel`` does with those voxels listed as keys in that order (phase 1), the
+    same updates in the same order, block by block without listing them (a depth frame's
+    projection: 2.3x less time than listing and applying the keys). From block ``start``;
+    returns (status, block to go on from). A block is done whole: room for its 512 voxels in the
+    tick buffer and one entry in ``changed`` is made sure of first (misses only raise a block's
+    count of clamped-free voxels, so it reaches 512 at most once). The per-voxel update is
+    written out here as in ``apply_voxels_kernel``: numba's call to a shared helper, even
+    inline="always", took 3x the time of the update itself."""
+    miss_lo32 = np.float32(miss_lo)
+    lo_min32 = np.float32(lo_min)
+    n_tb = tb_meta[0]
+    tb_cap = tb_block.shape[0]
+    n_ch = ch_meta[0]
+    ch_cap = changed.shape[0]
+    n_done = 0
+    for t in range(start, bkeys.shape[0]):
+        if n_tb + BLOCK_VOXELS > tb_cap or (use_quiet and n_ch >= ch_cap):
+            tb_meta[0] = n_tb
+            ch_meta[0] = n_ch
+            counters[1] += n_done
+            return STATUS_NEED_TICK_BUFFER if n_tb + BLOCK_VOXELS > tb_cap else STATUS_NEED_CHANGED, t
+        bx, by, bz = unpack_block(bkeys[t])
+        b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
+        if b < 0:
+            tb_meta[0] = n_tb
+            ch_meta[0] = n_ch
+            counters[1] += n_done
+            return STATUS_NEED_BLOCKS, t
+        if use_quiet and quiet[b] != 0:
+            continue
+        for wd in range(8):
+            word = masks[t, wd]
+            off = wd * 64 - 1
+            while word != 0:
+                off += 1
+                set_ = (word & np.uint64(1)) != 0
+                word >>= np.uint64(1)
+                if not set_:
+                    continue
+                st = stamp[b, off]
+                if st == frame_id:
+                    continue
+                if st < tick_first:
+                    tb_block[n_tb] = b
+                    tb_off[n_tb] = off
+                    n_tb += 1
+                old = logodds[b, off]
+                v = old + miss_lo32
+                v = lo_min32 if v < lo_min32 else v
+                logodds[b, off] = v
+                stamp[b, off] = frame_id
+                n_done += 1
+                if use_quiet and v == lo_min32 and old != lo_min32:  # (a miss only lowers: the count only rises)
+                    nfree[b] += 1
+                    if nfree[b] == BLOCK_VOXELS:
+                        changed[n_ch] = b
+                        n_ch += 1
+    tb_meta[0] = n_tb
+    ch_meta[0] = n_ch
+    counters[1] += n_done
+    return STATUS_DONE, -1
+
+
+@njit(cache=True, nogil=True)
 def apply_voxels_kernel(
     hits, misses,
     table_keys, table_vals, block_coords, meta, logodds, stamp, hit_mark,
