@@ -54,14 +54,14 @@ def test_every_snapshot_time_has_ot_ply_and_npz_even_with_an_empty_long_term_map
 
 def test_periodic_snapshots_stop_while_the_disk_is_nearly_full_and_the_run_completes(tmp_path, monkeypatch):
     """Hours of log write hundreds of snapshots. While the output's disk has less free than
-    KEEP_FREE_BYTES (or 3 snapshots), a periodic snapshot is left out: one warning, counted in
-    report.json; they start again when room comes back; the final snapshot and the maps are
-    written. (Before, a full disk failed the whole run at its end.) The disk here: full for the
-    2nd and 3rd periodic snapshots, then free again."""
+    3 snapshots and SNAPSHOT_FREE_MARGIN, a periodic snapshot is left out: one warning, counted
+    in report.json; they start again when room comes back; the final snapshot and the maps are
+    written. (Before, a full disk failed the whole run at its end.) The disk here: nearly full
+    for the 2nd and 3rd periodic snapshots, then free again."""
     import shutil
     from collections import namedtuple
 
-    from ltmap_cli.io.atomic import KEEP_FREE_BYTES
+    from ltmap_cli.pipeline.sinks import SNAPSHOT_FREE_MARGIN
 
     real = shutil.disk_usage
     usage = namedtuple("usage", "total used free")
@@ -71,7 +71,7 @@ def test_periodic_snapshots_stop_while_the_disk_is_nearly_full_and_the_run_compl
         u = real(path)
         calls.append(path)
         if len(calls) in (2, 3):
-            return usage(u.total, u.total - KEEP_FREE_BYTES // 2, KEEP_FREE_BYTES // 2)
+            return usage(u.total, u.total - SNAPSHOT_FREE_MARGIN // 2, SNAPSHOT_FREE_MARGIN // 2)
         return u
 
     monkeypatch.setattr(shutil, "disk_usage", disk_usage)

@@ -9,8 +9,8 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-# what ltmap's own bulk writes that a run can do without (a bag's decompressed copy, periodic
-# snapshots) leave free on their disk: filling it would fail the run, or the user's machine
+# what a bulk write ltmap makes for itself (a bag's decompressed copy) leaves free on its disk:
+# filling it would fail the run, or the user's machine
 KEEP_FREE_BYTES = 1 << 30
 
 @contextlib.contextmanager

@@ -23,13 +23,14 @@ from ..analysis.plan_tracker import PlanTracker
 from ..core.grid import band_k_range, coord_to_pos
 from ..core.layers import LayeredMap
 from ..core.projection import FootprintTrace, Projection, project, static_fills, virtual_scan
-from ..io.atomic import KEEP_FREE_BYTES, write_text_atomic
+from ..io.atomic import write_text_atomic
 from ..io.frames import OdometrySample, ScanFrame, TfSample
 from ..io.mapfile import GridMap, write_map
 from ..io.transforms import norm
 from ..outputs.snapshots import SNAPSHOTS, write_snapshot
 
 NS = 1_000_000_000
+SNAPSHOT_FREE_MARGIN = 64 << 20  # a periodic snapshot needs this free beside room for 3 like the last one
 
 
 @dataclass
@@ -322,14 +323,14 @@ class SnapshotSink(Sink):
 
     def _room(self, run, t_s: float) -> bool:
         """Whether the disk of the output folder has room for this periodic snapshot and still for
-        what the run's end writes (the final snapshot, the maps): at least KEEP_FREE_BYTES
-        and 3 snapshots the size of the last one. Hours of log write hundreds of snapshots;
-        filling the disk would fail the whole run at its end, so the periodic ones stop (said
-        once) and start again when room comes back."""
+        what the run's end writes (the final snapshot, the maps): 3 snapshots the size of the
+        last one and SNAPSHOT_FREE_MARGIN. Hours of log write hundreds of snapshots; filling the
+        disk would fail the whole run at its end, so the periodic ones stop (said once) and start
+        again when room comes back."""
         import shutil
 
         free = shutil.disk_usage(run.out).free
-        need = max(KEEP_FREE_BYTES, 3 * self.last_bytes)
+        need = SNAPSHOT_FREE_MARGIN + 3 * self.last_bytes
         if free >= need:
             return True
         if not self.skipped:
