@@ -53,3 +53,14 @@ def test_info_gives_utc_dates_of_wall_clock_logs_only():
     assert _utc(1_700_000_000 * s, 1_700_000_030 * s) == "; 2023-11-14 22:13:20 .. 22:13:50 UTC"
     assert _utc(1_700_000_000 * s, 1_700_100_000 * s) == "; 2023-11-14 22:13:20 .. 2023-11-16 02:00:00 UTC"
     assert _utc(0, 30 * s) == "" and _utc(1000 * s, 5000 * s) == ""  # sim time
+
+
+def test_the_summary_of_a_long_replay_gives_clocks():
+    from ltmap_cli.commands.replay import summary_line
+
+    rep = {"frames_used": {"/scan": 10}, "frames_skipped": {}, "speed_vs_real_time": 4.9,
+           "mapping_speed_vs_real_time": 5.0, "voxels": {"long_term_occupied": 7}}  # fmt: skip
+    assert summary_line({**rep, "log_duration_s": 10800.0, "wall_time_s": 2204.1}).startswith(
+        "replayed 3:00:00.0 of log in 36:44.1 (4.9x real time end to end; mapping alone 5.0x): 10 frames used")
+    assert summary_line({**rep, "log_duration_s": 30.0, "wall_time_s": 6.2}).startswith(
+        "replayed 30.0 s of log in 6.2 s (4.9x")

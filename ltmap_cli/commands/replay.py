@@ -32,6 +32,18 @@ def time_left(log_left_s: float, speed: float) -> str:
     return f"{s // 3600} h {(s % 3600) // 60:02d} min"
 
 
+def summary_line(report: dict) -> str:
+    """The line a replay ends with (stdout); an hour of log or more gives its times as clocks."""
+    used = sum(report["frames_used"].values())
+    skipped = sum(report["frames_skipped"].values())
+    log_s, wall_s = report["log_duration_s"], report["wall_time_s"]
+    took = (f"{clock(log_s)} of log in {clock(wall_s)}" if log_s >= LONG_LOG_S else
+            f"{log_s:.1f} s of log in {wall_s:.1f} s")  # fmt: skip
+    return (f"replayed {took} ({report['speed_vs_real_time']}x real time end to end; mapping alone "
+            f"{report['mapping_speed_vs_real_time']}x): {used} frames used, {skipped} skipped, "
+            f"{report['voxels']['long_term_occupied']} long-term voxels")
+
+
 class ProgressBar(StatusLine):
     """A one-line bar on stderr: log time done / total, frames/s, speed against real time and the
     time left at that speed (hours of log take a while); outside a terminal a line every 10 %.
@@ -203,14 +215,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
             if bar is not None:
                 bar.close()
         manifest = out.commit({"logs": [str(p) for p in logs]})
-    used = sum(report["frames_used"].values())
-    skipped = sum(report["frames_skipped"].values())
-    click.echo(
-        f"replayed {report['log_duration_s']:.1f} s of log in {report['wall_time_s']:.1f} s "
-        f"({report['speed_vs_real_time']}x real time end to end; mapping alone "
-        f"{report['mapping_speed_vs_real_time']}x): {used} frames used, {skipped} skipped, "
-        f"{report['voxels']['long_term_occupied']} long-term voxels"
-    )
+    click.echo(summary_line(report))
     loc = report.get("localization")
     if loc is not None and loc.get("child_frame"):
         click.echo(f"  localization: {loc['message']}")
