@@ -343,6 +343,75 @@ def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(
     assert not list(tmpdir_here.iterdir())
 
 
+def _split_compressed_bag(tmp_path: Path, parts: int = 3) -> tuple[Path, list]:
+    """A sqlite3 bag recorded in ``parts`` files of 10 s (rosbag2 --max-bag-duration 10), each
+    compressed (--compression-mode file), with metadata.yaml's per-file entries as rosbag2 writes
+    them; and the messages."""
+    import yaml
+    import zstandard
+
+    from test_replay import room_messages
+
+    msgs = room_messages(0.0, 10.0 * parts, pillar=True)
+    t_first = min(m.log_time_ns for m in msgs)
+    bag = tmp_path / "split"
+    bag.mkdir()
+    files, topics, start, end = [], {}, None, None
+    for k in range(parts):
+        part = [m for m in msgs if (k == 0 or k * 10 * S <= m.log_time_ns - t_first)
+                and (k == parts - 1 or m.log_time_ns - t_first < (k + 1) * 10 * S)]
+        one = write_log(tmp_path / f"part{k}", "ros2-sqlite3", part)
+        info = yaml.safe_load((one / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+        name = f"split_{k}.db3.zstd"
+        with next(one.glob("*.db3")).open("rb") as fi, (bag / name).open("wb") as fo:
+            zstandard.ZstdCompressor().copy_stream(fi, fo)
+        t0, dur = info["starting_time"]["nanoseconds_since_epoch"], info["duration"]["nanoseconds"]
+        files.append({"path": name, "starting_time": {"nanoseconds_since_epoch": t0},
+                      "duration": {"nanoseconds": dur}, "message_count": info["message_count"]})  # fmt: skip
+        start, end = t0 if start is None else min(start, t0), max(end or 0, t0 + dur)
+        for t in info["topics_with_message_count"]:
+            name_t = t["topic_metadata"]["name"]
+            if name_t in topics:
+                topics[name_t]["message_count"] += t["message_count"]
+            else:
+                topics[name_t] = dict(t)
+    info.update(relative_file_paths=[f["path"] for f in files], files=files, compression_mode="FILE",
+                compression_format="zstd", starting_time={"nanoseconds_since_epoch": start},
+                duration={"nanoseconds": end - start}, message_count=sum(f["message_count"] for f in files),
+                topics_with_message_count=list(topics.values()))  # fmt: skip
+    (bag / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": info}))
+    return bag, msgs
+
+
+def test_info_on_a_big_bag_compressed_file_by_file_decompresses_only_its_head(tmp_path, tmpdir_here, monkeypatch):
+    """`ltmap info` on a log over 1 GiB reads its first 30 s: a sqlite3 bag compressed file by
+    file is then decompressed only as far (the files that begin within those seconds, by
+    metadata.yaml), and its counts and times are still the whole bag's. Replay and --full read
+    every file. (Here: 3 files of 10 s, the head 5 s, the size bound lowered.)"""
+    from ltmap_cli.commands import info as info_cmd
+    from ltmap_cli.io import sources
+
+    bag, msgs = _split_compressed_bag(tmp_path)
+    plain = _all(_log(tmp_path, "ros2-sqlite3", msgs, name="plain"))
+    got = _all(bag)  # every file, read whole
+    assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
+    copies = []
+    real = sources._decompressed_copy
+    monkeypatch.setattr(sources, "_decompressed_copy", lambda *a: copies.append(real(*a)) or copies[-1])
+    monkeypatch.setattr(sources, "DECOMPRESS_NOTE", 0)
+    monkeypatch.setattr(info_cmd, "INFO_FULL_BYTES", 0)
+    monkeypatch.setattr(info_cmd, "INFO_HEAD_S", 5.0)
+    with pytest.warns(Warning, match="decompressing the first 1 of its 3 files"):
+        r = info_cmd.gather([bag])
+    assert r["read_s"] == 5.0 and not list(tmpdir_here.iterdir())
+    with pytest.warns(Warning, match="decompressing its 3 files"):
+        full = info_cmd.gather([bag], full=True)  # every file
+    assert {n: t["count"] for n, t in r["topics"].items()} == {n: t["count"] for n, t in full["topics"].items()}
+    assert r["topics"]["/scan"]["count"] == sum(m.topic == "/scan" for m in msgs)
+    assert (r["start_ns"], r["end_ns"]) == (full["start_ns"], full["end_ns"])
+    assert len(copies) == 2
+
+
 def test_a_damaged_message_of_a_message_compressed_ros2_mcap_bag_is_skipped(tmp_path):
     msgs = [scan("/scan", t * S, [float(t)]) for t in (1, 2, 3)]
     bag = _log(tmp_path, "ros2-mcap", msgs, ros2_compression="message")

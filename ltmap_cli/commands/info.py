@@ -97,10 +97,10 @@ def gather(
     ``INFO_FULL_BYTES`` in all are read for their first ``INFO_HEAD_S`` of log time only (what
     replay decides its frames from), with counts and times from their index, unless ``full``."""
 
-    with open_logs(paths, allow_truncated=True) as logs:
-        size = sum(_size(p) for p in paths)
-        head_ns = None if full or size <= INFO_FULL_BYTES or logs.start_ns is None else \
-            logs.start_ns + int(INFO_HEAD_S * NS)  # fmt: skip
+    size = sum(_size(p) for p in paths)
+    head = not full and size > INFO_FULL_BYTES
+    with open_logs(paths, allow_truncated=True, head_s=INFO_HEAD_S if head else None) as logs:
+        head_ns = None if not head or logs.start_ns is None else logs.start_ns + int(INFO_HEAD_S * NS)
         read_to: int | None = None  # head_ns, when reading stopped there
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
         buf = TfBuffer(window_ns=10 * 10**9)

@@ -606,10 +606,11 @@ def _merge(streams: list[Iterator[tuple]], starts: list[int | None]) -> Iterator
 
 
 def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False,
-              max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> LogSet:
+              max_message_mb: float = DEFAULT_MAX_MESSAGE_MB, head_s: float | None = None) -> LogSet:
     """Open one or several logs as one ``LogSet`` (see the module doc). ``max_message_mb``: the
     largest chunk or message (uncompressed) read; a log declaring more is refused (``TooLargeError``)
-    before anything is decompressed."""
+    before anything is decompressed. ``head_s``: only the first so many seconds of each log
+    will be read (``sources.open_source``)."""
     max_bytes = int(max_message_mb * 2**20)
     if isinstance(paths, (str, Path)):
         paths = [paths]
@@ -621,7 +622,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     given: dict[Path, Path] = {}  # resolved file of each source -> the path given for it
     try:
         for i, p in enumerate(paths):
-            opened = open_source(p, max_bytes)
+            opened = open_source(p, max_bytes, head_s)
             sources.extend(opened)
             source_log.extend([i] * len(opened))
             for src in opened:

@@ -960,8 +960,11 @@ def _merge_topic(topics: dict[str, TopicInfo], info: TopicInfo) -> None:
 _KINDS = "give a ROS 1 .bag file, a ROS 2 bag folder (with metadata.yaml) or an .mcap file"
 
 
-def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)) -> list[Source]:
-    """Open one log (a ROS 2 bag folder may give several sources); ``InputError`` / ``LogReadError`` name the file and what to do."""
+def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20),
+                head_s: float | None = None) -> list[Source]:  # fmt: skip
+    """Open one log (a ROS 2 bag folder may give several sources); ``InputError`` / ``LogReadError`` name the file and what to do.
+    ``head_s``: only the log's first so many seconds will be read (``ltmap info`` on a big log):
+    a sqlite3 bag compressed file by file is then decompressed only as far (``_decompressed_copy``)."""
     if not path.exists():
         raise InputError(f"log not found: {path}; {_KINDS}")
     if path.is_file() and (path.name == "metadata.yaml" or path.suffix == ".db3") \
@@ -970,7 +973,7 @@ def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
             raise InputError(f"{path} is a folder without metadata.yaml, not a ROS 2 bag; {_KINDS}")
-        return _open_ros2(path, max_bytes)
+        return _open_ros2(path, max_bytes, head_s)
     from .safe_yaml import check_regular_file
 
     if check_regular_file(path, "log", InputError) == 0:
@@ -1037,11 +1040,28 @@ DECOMPRESS_CHUNK = 8 << 20
 DECOMPRESS_NOTE = 256 << 20  # a copy of about this much or more is said before it is made
 
 
-def _decompressed_copy(folder: Path, info: dict) -> Path:
+def _head_files(info: dict, names: list[str], head_s: float) -> list[str]:
+    """Of a sqlite3 bag's files (``names``, in order), those that begin within its first
+    ``head_s`` seconds, by metadata.yaml's ``files`` entries; all of them when it lacks those or
+    the storage is not sqlite3 (an MCAP storage's counts come from each file: all are needed)."""
+    if str(info.get("storage_identifier", "")) != "sqlite3" or not isinstance(info.get("files"), list):
+        return names
+    try:
+        starts = {Path(str(f["path"])).name: int(f["starting_time"]["nanoseconds_since_epoch"]) for f in info["files"]}
+        t0 = min(starts[n] for n in names)
+    except (KeyError, TypeError, ValueError):
+        return names
+    head = [n for n in names if n in starts and starts[n] <= t0 + int(head_s * 1e9)]
+    return head or names[:1]
+
+
+def _decompressed_copy(folder: Path, info: dict, head_s: float | None = None) -> Path:
     """A ROS 2 bag compressed file by file (``ros2 bag record --compression-mode file``: each
     storage file one zstd stream, ``*.db3.zstd`` / ``*.mcap.zstd``): its files decompressed into a
     new folder under the temporary directory (``TMPDIR``), beside a metadata.yaml that says
-    they are not compressed; returns it. sqlite3 cannot read a stream, and
+    they are not compressed; returns it. With ``head_s`` only the files that begin within the
+    bag's first ``head_s`` seconds (``_head_files``); its metadata.yaml keeps the whole bag's
+    counts and times, so the copy reads as the bag's head. sqlite3 cannot read a stream, and
     an MCAP is read by seeking. The disk is watched as it fills: the copy stops with one line
     when it would leave less than ``KEEP_FREE_BYTES`` (a few kB of zstd can claim terabytes),
     instead of filling it (rosbags' own copy failed with ENOSPC, read as a corrupt bag)."""
@@ -1058,6 +1078,9 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
         raise LogReadError(f"ROS 2 bag {folder}: metadata.yaml lists no relative_file_paths; the bag folder is "
                            f"incomplete")  # fmt: skip
     names = list(dict.fromkeys(Path(n).name for n in names))  # (a name listed twice is one file, read once)
+    total = len(names)
+    if head_s is not None:
+        names = _head_files(info, names, head_s)
     files = []
     for name in names:
         src = folder / name  # (rosbag2 lists names in the folder: a path elsewhere is not read)
@@ -1072,9 +1095,11 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
 
         from ..errors import LtmapWarning
 
-        warnings.warn(LtmapWarning(f"ROS 2 bag {folder} is compressed file by file: decompressing its {len(files)} "
-                                   f"file{'s' if len(files) > 1 else ''} ({human(packed)} compressed) into {base} "
-                                   f"first (removed at the end; TMPDIR chooses the folder)"), stacklevel=2)  # fmt: skip
+        which = (f"its {len(files)} file{'s' if len(files) > 1 else ''}" if len(files) == total else
+                 f"the first {len(files)} of its {total} files")  # fmt: skip
+        warnings.warn(LtmapWarning(f"ROS 2 bag {folder} is compressed file by file: decompressing {which} "
+                                   f"({human(packed)} compressed) into {base} first (removed at the end; TMPDIR "
+                                   f"chooses the folder)"), stacklevel=2)  # fmt: skip
     tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=base))
     written = 0
     try:
@@ -1101,7 +1126,7 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
         meta["relative_file_paths"] = plain
         if isinstance(meta.get("files"), list):
             meta["files"] = [{**f, "path": Path(str(f.get("path", ""))).name.removesuffix(".zstd")}
-                             if isinstance(f, dict) else f for f in meta["files"]]  # fmt: skip
+                             for f in meta["files"] if isinstance(f, dict) and Path(str(f.get("path", ""))).name in names]  # fmt: skip
         import yaml
 
         (tmp / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": meta}, sort_keys=False))
@@ -1118,11 +1143,11 @@ def _decompressed_copy(folder: Path, info: dict) -> Path:
     return tmp
 
 
-def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
+def _open_ros2(path: Path, max_bytes: int, head_s: float | None = None) -> list[Source]:
     from .safe_yaml import MAX_YAML_BYTES, check_regular_file
 
     if path.is_dir() and _compression(info := _bag_info(path))[0] == "file":
-        copy = _decompressed_copy(path, info)
+        copy = _decompressed_copy(path, info, head_s)
         try:
             sources = _open_ros2(copy, max_bytes)
         except BaseException:
