@@ -349,7 +349,6 @@ def _split_compressed_bag(tmp_path: Path, parts: int = 3) -> tuple[Path, list]:
     them; and the messages."""
     import yaml
     import zstandard
-
     from test_replay import room_messages
 
     msgs = room_messages(0.0, 10.0 * parts, pillar=True)
