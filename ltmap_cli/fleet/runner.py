@@ -78,7 +78,7 @@ class Engine:
 
     def __init__(self, address: str | None = None, workers: int | None = None):
         self.address = address
-        self.workers = workers or default_workers()
+        self.workers = workers or usable_cores()
         self.client = None
         self.cluster = None
         self.startup_s = 0.0
@@ -151,10 +151,6 @@ class Engine:
 
 def _workers(n: int) -> str:
     return f"{n} worker" + ("s" if n != 1 else "")
-
-
-def default_workers() -> int:
-    return usable_cores()
 
 
 # ------------------------------------------------------------------------------------ output folder

@@ -1023,11 +1023,12 @@ def _compression(info: dict) -> tuple[str, str]:
     return str(info.get("compression_mode") or "").lower(), str(info.get("compression_format") or "").lower()
 
 
-def _message_compression(folder: Path) -> str | None:
+def _message_compression(folder: Path, info: dict) -> str | None:
     """The compression of each message of a ROS 2 bag (``ros2 bag record --compression-mode
     message``: each message's bytes compressed by themselves, in any storage), from its
-    metadata.yaml: "zstd", or None (none, or the whole file compressed: ``_decompressed_copy``)."""
-    mode, fmt = _compression(_bag_info(folder))
+    metadata.yaml's ``info``: "zstd", or None (none, or the whole file compressed:
+    ``_decompressed_copy``)."""
+    mode, fmt = _compression(info)
     if mode != "message":
         return None
     if fmt != "zstd":
@@ -1146,7 +1147,8 @@ def _decompressed_copy(folder: Path, info: dict, head_s: float | None = None) ->
 def _open_ros2(path: Path, max_bytes: int, head_s: float | None = None) -> list[Source]:
     from .safe_yaml import MAX_YAML_BYTES, check_regular_file
 
-    if path.is_dir() and _compression(info := _bag_info(path))[0] == "file":
+    info = _bag_info(path) if path.is_dir() else {}  # (read once: the compression of its files or messages)
+    if _compression(info)[0] == "file":
         copy = _decompressed_copy(path, info, head_s)
         try:
             sources = _open_ros2(copy, max_bytes)
@@ -1161,7 +1163,7 @@ def _open_ros2(path: Path, max_bytes: int, head_s: float | None = None) -> list[
     if mcaps:  # mcap storage: the mcap package streams it, and reads what a cut-off file still has
         for m in mcaps:
             check_regular_file(m, "log", InputError)
-        codec = _message_compression(path)
+        codec = _message_compression(path, info)
         return [McapSource(m, fmt="ros2-mcap", max_bytes=max_bytes, message_codec=codec) for m in mcaps]
     if path.is_dir():  # rosbags reads metadata.yaml whole: a FIFO or a huge file would hang it
         check_regular_file(path / "metadata.yaml", "ROS 2 bag metadata.yaml", InputError, MAX_YAML_BYTES)

@@ -34,6 +34,12 @@ def write_state(path: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> 
                 np.lib.format.write_array(out, np.asanyarray(a), allow_pickle=False)
 
 
+# what reading a damaged state file raises (numpy parses a damaged array header with tokenize;
+# zipfile raises NotImplementedError for an unknown compression method, RuntimeError for a member
+# flagged as encrypted)
+UNREADABLE = (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, MemoryError,
+              tokenize.TokenError, SyntaxError, NotImplementedError, RuntimeError)  # fmt: skip
+
 MAX_STATE_BYTES = 8 * 2**30  # the arrays a state file may expand to (a 100 m floor's is ~1 GB)
 
 
@@ -69,10 +75,7 @@ def read_state(path: str | Path, max_bytes: int = MAX_STATE_BYTES) -> tuple[dict
                 arrays[info.filename.removesuffix(".npy")] = arr
     except MapFileError:
         raise
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, MemoryError,
-            tokenize.TokenError, SyntaxError, NotImplementedError, RuntimeError) as exc:
-        # (numpy parses a damaged array header with tokenize; zipfile raises NotImplementedError
-        # for an unknown compression method, RuntimeError for a member flagged as encrypted)
+    except UNREADABLE as exc:
         text = first_line(exc, 120)
         raise _fault(p, f"not a readable ltmap state file ({text})") from None
     try:
@@ -103,7 +106,6 @@ def read_state_meta(path: str | Path) -> dict:
                 return {}
             with zf.open(info) as fh:
                 meta = json.loads(str(np.lib.format.read_array(fh, allow_pickle=False)))
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, zlib.error, KeyError, tokenize.TokenError,
-            SyntaxError, NotImplementedError, RuntimeError):  # fmt: skip
+    except UNREADABLE:
         return {}
     return meta if isinstance(meta, dict) else {}

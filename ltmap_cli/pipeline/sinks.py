@@ -313,7 +313,6 @@ class SnapshotSink(Sink):
         self.written: list[dict] = []
         self.last_bytes = 0  # the last snapshot's size
         self.skipped = 0  # periodic snapshots left out for want of disk
-        self.every_s = cfg.replay.snapshot_every
 
     def on_tick(self, run, tick) -> None:
         if tick.run_ns >= self.next_ns:
@@ -339,7 +338,7 @@ class SnapshotSink(Sink):
             from ..errors import LtmapWarning, human
 
             warnings.warn(LtmapWarning(
-                f"the disk of {run.final} has {human(free)} free: the snapshots every {self.every_s:g} s stop at "
+                f"the disk of {run.final} has {human(free)} free: the snapshots every {self.every_ns / NS:g} s stop at "
                 f"{t_s:.0f} s of log while it has less than {human(need)} (the final snapshot, the maps and the "
                 f"report are still written); free some space, or give --snapshot-every a longer period"),
                 stacklevel=2)  # fmt: skip
