@@ -247,18 +247,49 @@ def tmpdir_here(tmp_path, monkeypatch):
     return d
 
 
+def _without_file_entries(bag: Path) -> None:
+    """metadata.yaml as rosbag2 wrote it before its per-file entries (``files``)."""
+    import yaml
+
+    meta = bag / "metadata.yaml"
+    doc = yaml.safe_load(meta.read_text())
+    del doc["rosbag2_bagfile_information"]["files"]
+    meta.write_text(yaml.safe_dump(doc))
+
+
 @pytest.mark.parametrize("fmt", ["ros2-sqlite3", "ros2-mcap"])
 def test_a_bag_compressed_file_by_file_is_read_from_a_copy_removed_at_the_end(tmp_path, fmt, tmpdir_here,
                                                                               monkeypatch):
-    """--compression-mode file: every storage file one zstd stream. ltmap decompresses them into
-    a folder under TMPDIR (an MCAP storage then goes through ltmap's own MCAP reader), reads the
-    same frames as the plain bag, and removes the copy when the log is closed."""
+    """--compression-mode file: every storage file one zstd stream. ltmap decompresses each file
+    into a folder under TMPDIR when reading reaches it (an MCAP storage then goes through ltmap's
+    own MCAP reader), reads the same frames as the plain bag, and removes the copy once the file
+    is read. Without metadata.yaml's per-file entries (older rosbag2) the whole bag is copied
+    when opened, removed when the log is closed."""
     from ltmap_cli.io import sources
 
     plain = _all(_log(tmp_path, fmt, _mixed(), name="plain"))
     packed = _log(tmp_path, fmt, _mixed(), name="packed", ros2_compression="file")
     assert not list(packed.glob("*.db3")) and not list(packed.glob("*.mcap"))
     with open_logs(packed) as logs:
+        assert not list(tmpdir_here.iterdir())  # nothing decompressed before reading reaches it
+        assert [type(s) for s in logs.sources] == [sources.CompressedFileSource]
+        assert logs.topics["/scan"].count == 1 and logs.start_ns == S and logs.end_ns == 3 * S + 1
+        got = []
+        for item in logs.messages():
+            copies = list(tmpdir_here.glob("ltmap-bag-*/*"))
+            assert [c.suffix for c in copies] == [".mcap" if fmt == "ros2-mcap" else ".db3"]
+            got.append(item)
+        assert not list(tmpdir_here.iterdir())  # removed once read
+    assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
+    # a big one is said before it is read (where it goes, what chooses it)
+    monkeypatch.setattr(sources, "DECOMPRESS_NOTE", 0)
+    with pytest.warns(Warning, match=f"compressed file by file: each of its 1 files is decompressed into "
+                                     f"{tmpdir_here} when reading reaches it"):
+        open_logs(packed).close()
+    _without_file_entries(packed)
+    with pytest.warns(Warning, match=f"compressed file by file: decompressing its 1 file .* into {tmpdir_here} first"):
+        logs = open_logs(packed)
+    with logs:
         copies = list(tmpdir_here.glob("ltmap-bag-*"))
         assert len(copies) == 1 and (copies[0] / "metadata.yaml").is_file()
         assert all(isinstance(s, sources.McapSource if fmt == "ros2-mcap" else sources.Ros2BagSource)
@@ -266,28 +297,28 @@ def test_a_bag_compressed_file_by_file_is_read_from_a_copy_removed_at_the_end(tm
         got = list(logs.messages())
     assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
     assert not list(tmpdir_here.iterdir())  # the copy is gone
-    # a big one is said before it is made (minutes for tens of GB)
-    monkeypatch.setattr(sources, "DECOMPRESS_NOTE", 0)
-    with pytest.warns(Warning, match=f"compressed file by file: decompressing its 1 file .* into {tmpdir_here} first"):
-        open_logs(packed).close()
 
 
-def test_a_copy_that_would_fill_the_disk_stops_with_one_line(tmp_path, tmpdir_here, monkeypatch):
+@pytest.mark.parametrize("entries", [True, False])
+def test_a_copy_that_would_fill_the_disk_stops_with_one_line(tmp_path, tmpdir_here, monkeypatch, entries):
     """The copy watches the disk as it fills: once it would leave less than KEEP_FREE_BYTES
     (here: all but 1 kB of what is free), one line says where, how much, and what to do (TMPDIR,
     `ros2 bag convert`), and nothing is left in TMPDIR. (rosbags' own copy ran into ENOSPC,
-    reported as a corrupt bag; a few kB of zstd can claim terabytes.)"""
+    reported as a corrupt bag; a few kB of zstd can claim terabytes.) When the bag is read a
+    file at a time, that is when reading reaches the file; else when it is opened."""
     import shutil
 
     from ltmap_cli.io import sources
 
     packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
+    if not entries:
+        _without_file_entries(packed)
     monkeypatch.setattr(sources, "KEEP_FREE_BYTES", shutil.disk_usage(tmpdir_here).free - 1024)
     with pytest.raises(LogReadError) as err:
-        open_logs(packed)
+        _all(packed)
     text = str(err.value)
     assert "compressed file by file" in text and str(tmpdir_here) in text and "set TMPDIR" in text
-    assert "ros2 bag convert" in text and "\n" not in text
+    assert "ros2 bag convert" in text and "\n" not in text and "packed.db3.zstd" in text
     assert not list(tmpdir_here.iterdir())
 
 
@@ -305,16 +336,15 @@ def test_a_file_left_uncompressed_in_a_bag_compressed_file_by_file_is_read_as_it
     meta = packed / "metadata.yaml"
     doc = yaml.safe_load(meta.read_text())
     doc["rosbag2_bagfile_information"]["relative_file_paths"] = [z.stem]
+    doc["rosbag2_bagfile_information"]["files"][0]["path"] = z.stem
     meta.write_text(yaml.safe_dump(doc))
     got = _all(packed)
     assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
     assert not list(tmpdir_here.iterdir())
 
 
-def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(tmp_path, tmpdir_here, monkeypatch):
+def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(tmp_path, tmpdir_here):
     import yaml
-
-    from ltmap_cli.io import sources
 
     plain = _all(_log(tmp_path, "ros2-sqlite3", _mixed(), name="plain"))
     packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
@@ -325,18 +355,28 @@ def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(
     doc = yaml.safe_load(meta.read_text())
     doc["rosbag2_bagfile_information"]["relative_file_paths"] = ["../../etc/" + z.name] * 100_000
     meta.write_text(yaml.safe_dump(doc))
-    copies = []
-    real = sources._decompressed_copy
-    monkeypatch.setattr(sources, "_decompressed_copy", lambda *a: copies.append(real(*a)) or copies[-1])
     with open_logs(packed) as logs:
-        assert sorted(p.name for p in copies[0].iterdir()) == sorted([z.stem, "metadata.yaml"])
+        assert [s.path for s in logs.sources] == [z]
         got = list(logs.messages())
     assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
+    # metadata.yaml's topics and per-file entries are not trusted further than their types:
+    # damaged ones read the bag as a copy made when it is opened
+    for bad in ("oops", [{"path": z.name, "starting_time": {"nanoseconds_since_epoch": -5}}]):
+        doc["rosbag2_bagfile_information"]["files"] = bad
+        meta.write_text(yaml.safe_dump(doc))
+        got = _all(packed)
+        assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
     data = bytearray(z.read_bytes())
     data[:4] = b"\x00\x01\x02\x03"  # not a zstd frame
     z.write_bytes(bytes(data))
     with pytest.raises(LogReadError, match=f"{z.name} is not a readable zstd stream"):
-        open_logs(packed)
+        open_logs(packed)  # (the copy made when opened)
+    doc = yaml.safe_load(meta.read_text())
+    doc["rosbag2_bagfile_information"]["files"] = [{"path": z.name, "starting_time": {"nanoseconds_since_epoch": S},
+                                                    "duration": {"nanoseconds": 2 * S}}]  # fmt: skip
+    meta.write_text(yaml.safe_dump(doc))
+    with pytest.raises(LogReadError, match=f"{z.name} is not a readable zstd stream"):
+        _all(packed)  # (when reading reaches it)
     z.unlink()
     with pytest.raises(InputError, match=f"{z.name} .in metadata.yaml. is missing"):
         open_logs(packed)
@@ -382,33 +422,88 @@ def _split_compressed_bag(tmp_path: Path, parts: int = 3) -> tuple[Path, list]:
     return bag, msgs
 
 
-def test_info_on_a_big_bag_compressed_file_by_file_decompresses_only_its_head(tmp_path, tmpdir_here, monkeypatch):
-    """`ltmap info` on a log over 1 GiB reads its first 30 s: a sqlite3 bag compressed file by
-    file is then decompressed only as far (the files that begin within those seconds, by
-    metadata.yaml), and its counts and times are still the whole bag's. Replay and --full read
-    every file. (Here: 3 files of 10 s, the head 5 s, the size bound lowered.)"""
+def test_a_bag_compressed_file_by_file_is_decompressed_a_file_at_a_time(tmp_path, tmpdir_here, monkeypatch):
+    """A bag recorded in files of 10 s, each compressed: reading holds one file decompressed at
+    a time (an hour of RGB-D log needs room for one file, not the whole bag), in order, and
+    reads what the plain bag reads; message indexes count in each file. `ltmap info` on a log
+    over 1 GiB reads its first 30 s: it decompresses only the files that begin within them, and
+    its counts and times are still the whole bag's (metadata.yaml's). (Here: 3 files of 10 s,
+    the head 5 s, the size bound lowered.)"""
     from ltmap_cli.commands import info as info_cmd
     from ltmap_cli.io import sources
 
     bag, msgs = _split_compressed_bag(tmp_path)
-    plain = _all(_log(tmp_path, "ros2-sqlite3", msgs, name="plain"))
-    got = _all(bag)  # every file, read whole
+    plain_bag = _log(tmp_path, "ros2-sqlite3", msgs, name="plain")
+    plain = _all(plain_bag)
+    made = []
+    real = sources._decompress_file
+
+    def watched(folder, src, dst):
+        assert not list(tmpdir_here.glob("ltmap-bag-*/*"))  # the file before is gone
+        made.append(src.name)
+        real(folder, src, dst)
+
+    monkeypatch.setattr(sources, "_decompress_file", watched)
+    with open_logs([bag, plain_bag]) as logs:  # (info's formats: one per log given, not per file)
+        assert logs.formats == ["ros2-sqlite3, 3 files", "ros2-sqlite3"]
+    with open_logs(bag) as logs:
+        assert [s.path.name for s in logs.sources] == [f"split_{k}.db3.zstd" for k in range(3)]
+        assert logs.topics["/scan"].count == sum(m.topic == "/scan" for m in msgs)
+        where = [w for _, _, _, w in logs.raw(["/scan"])]
+    assert made == [f"split_{k}.db3.zstd" for k in range(3)]
+    assert where[0].endswith("message index 0 in " + str(bag / "split_0.db3.zstd"))
+    assert where[-1].endswith(" in " + str(bag / "split_2.db3.zstd"))
+    made.clear()
+    got = _all(bag)
     assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
-    copies = []
-    real = sources._decompressed_copy
-    monkeypatch.setattr(sources, "_decompressed_copy", lambda *a: copies.append(real(*a)) or copies[-1])
+    assert len(made) == 3 and not list(tmpdir_here.iterdir())
+    made.clear()
     monkeypatch.setattr(sources, "DECOMPRESS_NOTE", 0)
     monkeypatch.setattr(info_cmd, "INFO_FULL_BYTES", 0)
     monkeypatch.setattr(info_cmd, "INFO_HEAD_S", 5.0)
-    with pytest.warns(Warning, match="decompressing the first 1 of its 3 files"):
+    with pytest.warns(Warning, match="each of its 3 files is decompressed"):
         r = info_cmd.gather([bag])
-    assert r["read_s"] == 5.0 and not list(tmpdir_here.iterdir())
-    with pytest.warns(Warning, match="decompressing its 3 files"):
-        full = info_cmd.gather([bag], full=True)  # every file
+    assert r["read_s"] == 5.0 and made == ["split_0.db3.zstd"] and not list(tmpdir_here.iterdir())
+    full = info_cmd.gather([bag], full=True)  # every file
+    assert len(made) == 4
     assert {n: t["count"] for n, t in r["topics"].items()} == {n: t["count"] for n, t in full["topics"].items()}
     assert r["topics"]["/scan"]["count"] == sum(m.topic == "/scan" for m in msgs)
     assert (r["start_ns"], r["end_ns"]) == (full["start_ns"], full["end_ns"])
-    assert len(copies) == 2
+
+
+def test_replay_of_a_bag_compressed_file_by_file_and_a_disk_that_fills_on_its_second_file(tmp_path, tmpdir_here,
+                                                                                         monkeypatch):
+    """`ltmap replay` of the 3-file compressed bag gives the plain bag's map, byte for byte, and
+    leaves TMPDIR empty. When the disk would fill while the second file is decompressed, mid-run:
+    one error line (exit 2) naming that file and TMPDIR, no output folder, TMPDIR empty."""
+    import shutil
+
+    from click.testing import CliRunner
+
+    from ltmap_cli.cli import cli
+    from ltmap_cli.io import sources
+
+    bag, msgs = _split_compressed_bag(tmp_path)
+    plain = _log(tmp_path, "ros2-sqlite3", msgs, name="plain")
+    runs = {}
+    for name, log in (("plain", plain), ("packed", bag)):
+        r = CliRunner().invoke(cli, ["replay", str(log), "-o", str(tmp_path / f"out_{name}"), "-q", "--no-plots"])
+        assert r.exit_code == 0, r.output
+        runs[name] = (tmp_path / f"out_{name}" / "map.pgm").read_bytes()
+    assert runs["packed"] == runs["plain"] and not list(tmpdir_here.iterdir())
+    real = sources._decompress_file
+
+    def tight(folder, src, dst):
+        if src.name == "split_1.db3.zstd":  # leaves too little free from here on
+            monkeypatch.setattr(sources, "KEEP_FREE_BYTES", shutil.disk_usage(dst.parent).free + 1)
+        real(folder, src, dst)
+
+    monkeypatch.setattr(sources, "_decompress_file", tight)
+    r = CliRunner().invoke(cli, ["replay", str(bag), "-o", str(tmp_path / "full"), "-q", "--no-plots"])
+    errors = [x for x in r.output.splitlines() if x.startswith("ltmap: error: ")]
+    assert r.exit_code == 2 and len(errors) == 1, r.output
+    assert "split_1.db3.zstd" in errors[0] and f"free in {tmpdir_here}" in errors[0] and "set TMPDIR" in errors[0]
+    assert not (tmp_path / "full").exists() and not list(tmpdir_here.iterdir())
 
 
 def test_a_damaged_message_of_a_message_compressed_ros2_mcap_bag_is_skipped(tmp_path):

@@ -99,7 +99,7 @@ def gather(
 
     size = sum(_size(p) for p in paths)
     head = not full and size > INFO_FULL_BYTES
-    with open_logs(paths, allow_truncated=True, head_s=INFO_HEAD_S if head else None) as logs:
+    with open_logs(paths, allow_truncated=True) as logs:
         head_ns = None if not head or logs.start_ns is None else logs.start_ns + int(INFO_HEAD_S * NS)
         read_to: int | None = None  # head_ns, when reading stopped there
         sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
@@ -354,8 +354,6 @@ def render(r: dict) -> str:
     lines = []
     for name, fmt in zip(r["logs"], r["formats"]):
         lines.append(f"log:       {name} ({fmt})")
-    if len(r["formats"]) > len(r["logs"]):
-        lines.append(f"storage:   {', '.join(r['formats'])}")
     if r["start_ns"] is not None:
         dur = (r["end_ns"] - r["start_ns"]) / 1e9
         lines.append(f"duration:  {dur:.2f} s{f' ({clock(dur)})' if dur >= 60 else ''}  "

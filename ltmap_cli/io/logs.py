@@ -274,7 +274,14 @@ class LogSet:
 
     @property
     def formats(self) -> list[str]:
-        return [s.fmt for s in self.sources]
+        """Per log given, its format; with the number of its files when it has several (a ROS 2
+        bag split by rosbag2), e.g. "ros2-sqlite3, 3 files"."""
+        out = []
+        for k in range(len(self.paths)):
+            fmts = [s.fmt for s, log in zip(self.sources, self.source_log) if log == k]
+            files = f", {len(fmts)} files" if len(fmts) > 1 else ""
+            out.append(", ".join(dict.fromkeys(fmts)) + files)
+        return out
 
     def select(self, scan_topics: Sequence[str] = (), cloud_topics: Sequence[str] = (),
                depth_topics: Sequence[str] = (), *, require_sensor: bool = True) -> TopicSelection:
@@ -606,11 +613,10 @@ def _merge(streams: list[Iterator[tuple]], starts: list[int | None]) -> Iterator
 
 
 def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = False,
-              max_message_mb: float = DEFAULT_MAX_MESSAGE_MB, head_s: float | None = None) -> LogSet:
+              max_message_mb: float = DEFAULT_MAX_MESSAGE_MB) -> LogSet:
     """Open one or several logs as one ``LogSet`` (see the module doc). ``max_message_mb``: the
     largest chunk or message (uncompressed) read; a log declaring more is refused (``TooLargeError``)
-    before anything is decompressed. ``head_s``: only the first so many seconds of each log
-    will be read (``sources.open_source``)."""
+    before anything is decompressed."""
     max_bytes = int(max_message_mb * 2**20)
     if isinstance(paths, (str, Path)):
         paths = [paths]
@@ -622,7 +628,7 @@ def open_logs(paths: Path | str | Sequence[Path | str], allow_truncated: bool = 
     given: dict[Path, Path] = {}  # resolved file of each source -> the path given for it
     try:
         for i, p in enumerate(paths):
-            opened = open_source(p, max_bytes, head_s)
+            opened = open_source(p, max_bytes)
             sources.extend(opened)
             source_log.extend([i] * len(opened))
             for src in opened:

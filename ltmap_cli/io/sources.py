@@ -960,11 +960,8 @@ def _merge_topic(topics: dict[str, TopicInfo], info: TopicInfo) -> None:
 _KINDS = "give a ROS 1 .bag file, a ROS 2 bag folder (with metadata.yaml) or an .mcap file"
 
 
-def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20),
-                head_s: float | None = None) -> list[Source]:  # fmt: skip
-    """Open one log (a ROS 2 bag folder may give several sources); ``InputError`` / ``LogReadError`` name the file and what to do.
-    ``head_s``: only the log's first so many seconds will be read (``ltmap info`` on a big log):
-    a sqlite3 bag compressed file by file is then decompressed only as far (``_decompressed_copy``)."""
+def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)) -> list[Source]:
+    """Open one log (a ROS 2 bag folder may give several sources); ``InputError`` / ``LogReadError`` name the file and what to do."""
     if not path.exists():
         raise InputError(f"log not found: {path}; {_KINDS}")
     if path.is_file() and (path.name == "metadata.yaml" or path.suffix == ".db3") \
@@ -973,7 +970,7 @@ def open_source(path: Path, max_bytes: int = int(DEFAULT_MAX_MESSAGE_MB * 2**20)
     if path.is_dir():
         if not (path / "metadata.yaml").is_file():
             raise InputError(f"{path} is a folder without metadata.yaml, not a ROS 2 bag; {_KINDS}")
-        return _open_ros2(path, max_bytes, head_s)
+        return _open_ros2(path, max_bytes)
     from .safe_yaml import check_regular_file
 
     if check_regular_file(path, "log", InputError) == 0:
@@ -1041,35 +1038,47 @@ DECOMPRESS_CHUNK = 8 << 20
 DECOMPRESS_NOTE = 256 << 20  # a copy of about this much or more is said before it is made
 
 
-def _head_files(info: dict, names: list[str], head_s: float) -> list[str]:
-    """Of a sqlite3 bag's files (``names``, in order), those that begin within its first
-    ``head_s`` seconds, by metadata.yaml's ``files`` entries; all of them when it lacks those or
-    the storage is not sqlite3 (an MCAP storage's counts come from each file: all are needed)."""
-    if str(info.get("storage_identifier", "")) != "sqlite3" or not isinstance(info.get("files"), list):
-        return names
-    try:
-        starts = {Path(str(f["path"])).name: int(f["starting_time"]["nanoseconds_since_epoch"]) for f in info["files"]}
-        t0 = min(starts[n] for n in names)
-    except (KeyError, TypeError, ValueError):
-        return names
-    head = [n for n in names if n in starts and starts[n] <= t0 + int(head_s * 1e9)]
-    return head or names[:1]
-
-
-def _decompressed_copy(folder: Path, info: dict, head_s: float | None = None) -> Path:
-    """A ROS 2 bag compressed file by file (``ros2 bag record --compression-mode file``: each
-    storage file one zstd stream, ``*.db3.zstd`` / ``*.mcap.zstd``): its files decompressed into a
-    new folder under the temporary directory (``TMPDIR``), beside a metadata.yaml that says
-    they are not compressed; returns it. With ``head_s`` only the files that begin within the
-    bag's first ``head_s`` seconds (``_head_files``); its metadata.yaml keeps the whole bag's
-    counts and times, so the copy reads as the bag's head. sqlite3 cannot read a stream, and
-    an MCAP is read by seeking. The disk is watched as it fills: the copy stops with one line
-    when it would leave less than ``KEEP_FREE_BYTES`` (a few kB of zstd can claim terabytes),
-    instead of filling it (rosbags' own copy failed with ENOSPC, read as a corrupt bag)."""
-    import tempfile
-
+def _decompress_file(folder: Path, src: Path, dst: Path) -> None:
+    """Decompress one storage file of a ROS 2 bag compressed file by file (a zstd stream) into
+    ``dst`` (a file listed without ``.zstd``, as a recorder stopped before compressing its last
+    one leaves it, is copied as it is), watching the disk as it fills: the copy stops with one
+    line when it would leave less than ``KEEP_FREE_BYTES`` free (a few kB of zstd can claim
+    terabytes), instead of filling it (rosbags' own copy failed with ENOSPC, read as a corrupt
+    bag). A damaged stream is one line too; ``dst`` is removed on failure."""
     import zstandard
 
+    base = dst.parent
+    written = 0
+    try:
+        with src.open("rb") as fi, dst.open("wb") as fo:
+            reader = zstandard.ZstdDecompressor().stream_reader(fi, read_across_frames=True) \
+                if src.suffix == ".zstd" else fi  # fmt: skip
+            while chunk := reader.read(DECOMPRESS_CHUNK):
+                free = shutil.disk_usage(base).free
+                if free - len(chunk) < KEEP_FREE_BYTES:
+                    raise LogReadError(
+                        f"ROS 2 bag {folder} is compressed file by file and is read from decompressed copies: "
+                        f"after {human(written + len(chunk))} of {src.name}, the copy would leave less than "
+                        f"{human(KEEP_FREE_BYTES)} free in {base.parent} ({human(free)} free); set TMPDIR to a folder "
+                        f"on a disk with room, or convert the bag once to an uncompressed one (`ros2 bag convert`)")
+                fo.write(chunk)
+                written += len(chunk)
+    except BaseException as err:
+        dst.unlink(missing_ok=True)
+        if isinstance(err, zstandard.ZstdError):
+            raise LogReadError(f"ROS 2 bag {folder}: {src.name} is not a readable zstd stream ({first_line(err, 120)}); "
+                               f"the file is damaged") from None  # fmt: skip
+        if isinstance(err, OSError) and err.errno == errno.ENOSPC:
+            raise LogReadError(f"ROS 2 bag {folder} is compressed file by file and is read from decompressed copies: "
+                               f"the disk of {base.parent} is full; set TMPDIR to a folder on a disk with room, or "
+                               f"convert the bag once to an uncompressed one (`ros2 bag convert`)") from None  # fmt: skip
+        raise
+
+
+def _compressed_files(folder: Path, info: dict) -> list[Path]:
+    """The storage files of a ROS 2 bag compressed file by file, in metadata.yaml's order: each
+    name listed is the file of that name in the folder, once (rosbag2 lists names in the folder:
+    a path elsewhere is not read; a hostile list naming one file 100,000 times reads it once)."""
     fmt = _compression(info)[1]
     if fmt != "zstd":
         raise InputError(f"ROS 2 bag {folder}: its files are compressed with {fmt or '(no format named)'!r}; ltmap "
@@ -1078,78 +1087,158 @@ def _decompressed_copy(folder: Path, info: dict, head_s: float | None = None) ->
     if not isinstance(names, list) or not names or not all(isinstance(n, str) and n for n in names):
         raise LogReadError(f"ROS 2 bag {folder}: metadata.yaml lists no relative_file_paths; the bag folder is "
                            f"incomplete")  # fmt: skip
-    names = list(dict.fromkeys(Path(n).name for n in names))  # (a name listed twice is one file, read once)
-    total = len(names)
-    if head_s is not None:
-        names = _head_files(info, names, head_s)
     files = []
-    for name in names:
-        src = folder / name  # (rosbag2 lists names in the folder: a path elsewhere is not read)
+    for name in dict.fromkeys(Path(n).name for n in names):
+        src = folder / name
         if not src.is_file():
             raise InputError(f"ROS 2 bag {folder}: {name} (in metadata.yaml) is missing; the bag folder "
                              f"is incomplete")  # fmt: skip
         files.append(src)
+    return files
+
+
+def _note_decompressing(folder: Path, files: list[Path], lazily: bool) -> None:
+    """Say, before it is made, a decompressed copy of about ``DECOMPRESS_NOTE`` or more (minutes
+    for tens of GB), and where it goes: of the largest file when ``lazily`` (a file at a time),
+    else of them all."""
+    sizes = [f.stat().st_size for f in files]
+    size = max(sizes) if lazily else sum(sizes)
+    if size * 2 < DECOMPRESS_NOTE:
+        return
+    import tempfile
+    import warnings
+
+    from ..errors import LtmapWarning
+
     base = Path(tempfile.gettempdir())
-    packed = sum(f.stat().st_size for f in files)
-    if packed * 2 >= DECOMPRESS_NOTE:  # (minutes for tens of GB: said before, not after)
-        import warnings
+    n = len(files)
+    if lazily:
+        what = (f"each of its {n} files is decompressed into {base} when reading reaches it and removed once read "
+                f"(the largest {human(size)} compressed")  # fmt: skip
+    else:
+        what = f"decompressing its {n} file{'s' if n > 1 else ''} ({human(size)} compressed) into {base} first " \
+               f"(removed at the end"  # fmt: skip
+    warnings.warn(LtmapWarning(f"ROS 2 bag {folder} is compressed file by file: {what}; TMPDIR chooses the folder)"),
+                  stacklevel=3)
 
-        from ..errors import LtmapWarning
 
-        which = (f"its {len(files)} file{'s' if len(files) > 1 else ''}" if len(files) == total else
-                 f"the first {len(files)} of its {total} files")  # fmt: skip
-        warnings.warn(LtmapWarning(f"ROS 2 bag {folder} is compressed file by file: decompressing {which} "
-                                   f"({human(packed)} compressed) into {base} first (removed at the end; TMPDIR "
-                                   f"chooses the folder)"), stacklevel=2)  # fmt: skip
-    tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=base))
-    written = 0
+def _decompressed_copy(folder: Path, info: dict) -> Path:
+    """A ROS 2 bag compressed file by file whose metadata.yaml does not say when each file
+    begins (``_file_sources`` needs that): all its files decompressed into a new folder under
+    the temporary directory (``TMPDIR``), beside a metadata.yaml that says they are not
+    compressed; returns it. sqlite3 cannot read a stream, and an MCAP is read by seeking."""
+    import tempfile
+
+    files = _compressed_files(folder, info)
+    _note_decompressing(folder, files, lazily=False)
+    tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
     try:
         for src in files:
-            dst = tmp / (src.stem if src.suffix == ".zstd" else src.name)
-            with src.open("rb") as fi, dst.open("wb") as fo:
-                # (a file listed without .zstd, as a recorder stopped before compressing its last
-                # one leaves it, is copied as it is)
-                reader = zstandard.ZstdDecompressor().stream_reader(fi, read_across_frames=True) \
-                    if src.suffix == ".zstd" else fi  # fmt: skip
-                while chunk := reader.read(DECOMPRESS_CHUNK):
-                    free = shutil.disk_usage(tmp).free
-                    if free - len(chunk) < KEEP_FREE_BYTES:
-                        raise LogReadError(
-                            f"ROS 2 bag {folder} is compressed file by file and is read from a decompressed copy: "
-                            f"after {human(written + len(chunk))}, the copy would leave less than "
-                            f"{human(KEEP_FREE_BYTES)} free in {base} ({human(free)} free); set TMPDIR to a folder on "
-                            f"a disk with room, or convert the bag once to an uncompressed one (`ros2 bag convert`)")
-                    fo.write(chunk)
-                    written += len(chunk)
+            _decompress_file(folder, src, tmp / src.name.removesuffix(".zstd"))
         meta = dict(info)
         meta["compression_mode"], meta["compression_format"] = "", ""
-        plain = [n.removesuffix(".zstd") for n in names]
-        meta["relative_file_paths"] = plain
-        if isinstance(meta.get("files"), list):
-            meta["files"] = [{**f, "path": Path(str(f.get("path", ""))).name.removesuffix(".zstd")}
-                             for f in meta["files"] if isinstance(f, dict) and Path(str(f.get("path", ""))).name in names]  # fmt: skip
+        meta["relative_file_paths"] = [f.name.removesuffix(".zstd") for f in files]
+        meta.pop("files", None)
         import yaml
 
         (tmp / "metadata.yaml").write_text(yaml.safe_dump({"rosbag2_bagfile_information": meta}, sort_keys=False))
-    except BaseException as err:
+    except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(err, zstandard.ZstdError):
-            raise LogReadError(f"ROS 2 bag {folder}: {src.name} is not a readable zstd stream ({first_line(err, 120)}); "
-                               f"the file is damaged") from None  # fmt: skip
-        if isinstance(err, OSError) and err.errno == errno.ENOSPC:
-            raise LogReadError(f"ROS 2 bag {folder} is compressed file by file and is read from a decompressed copy: "
-                               f"the disk of {base} is full; set TMPDIR to a folder on a disk with room, or convert the "
-                               f"bag once to an uncompressed one (`ros2 bag convert`)") from None  # fmt: skip
         raise
     return tmp
 
 
-def _open_ros2(path: Path, max_bytes: int, head_s: float | None = None) -> list[Source]:
+class CompressedFileSource(Source):
+    """One storage file of a ROS 2 bag compressed file by file (``ros2 bag record
+    --compression-mode file``: ``*.db3.zstd`` / ``*.mcap.zstd``, split by ``--max-bag-size`` or
+    ``--max-bag-duration``), decompressed into the temporary directory (``TMPDIR``) only when
+    reading reaches it (the merge starts it at its first message, which metadata.yaml's ``files``
+    entry gives) and removed as soon as it is read: the disk holds one file of the bag
+    decompressed at a time (two where their times overlap), not the whole bag, and an hour of
+    RGB-D log starts mapping at once instead of after minutes of decompressing. The bag's topics
+    and counts are metadata.yaml's (``topics`` of the first file; the others add none); the
+    messages, their definitions and indexes (counted in each file) are the file's own."""
+
+    def __init__(self, folder: Path, src: Path, fmt: str, start_ns: int, end_ns: int,
+                 topics: dict[str, TopicInfo], max_bytes: int):
+        self.folder, self.path, self.fmt = folder, src, fmt
+        self.start_ns, self.end_ns, self.topics = start_ns, end_ns, topics
+        self.max_bytes = max_bytes
+        self._tmp: Path | None = None
+
+    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
+        import tempfile
+
+        self._tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
+        inner: Source | None = None
+        try:
+            dst = self._tmp / self.path.name.removesuffix(".zstd")
+            _decompress_file(self.folder, self.path, dst)
+            try:
+                inner = McapSource(dst, fmt=self.fmt, max_bytes=self.max_bytes) if self.fmt == "ros2-mcap" \
+                    else Ros2BagSource(dst)  # fmt: skip
+            except (TooLargeError, InputError):
+                raise
+            except Exception as err:  # noqa: BLE001 - rosbags and sqlite3 raise several kinds
+                self.stopped_at = f"{self.path}: cannot be read ({first_line(err, 200)})"
+                return
+            yield from inner.iter(topics, skip)
+        finally:
+            if inner is not None:
+                if inner.stopped_at:
+                    self.stopped_at = inner.stopped_at.replace(str(dst), str(self.path))
+                inner.close()
+            self._close()
+
+    def _close(self) -> None:
+        if self._tmp is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+
+def _ns(entry: Any, key: str, unit: str) -> int:
+    value = entry[key][unit]
+    if not isinstance(value, int) or isinstance(value, bool) or not 0 <= value < 2**63:
+        raise ValueError(key)
+    return value
+
+
+def _file_sources(folder: Path, info: dict, max_bytes: int) -> list[Source] | None:
+    """The files of a ROS 2 bag compressed file by file as ``CompressedFileSource`` items, each
+    decompressed when reached; None when metadata.yaml lacks what that needs (each file's
+    starting time and duration, the topics and their types: rosbag2 writes them since Foxy's
+    successors; ``_decompressed_copy`` then copies the whole bag first)."""
+    files = _compressed_files(folder, info)
+    storage = str(info.get("storage_identifier", ""))
+    if storage not in ("sqlite3", "mcap"):
+        return None
+    try:
+        entries = {Path(str(f["path"])).name: f for f in info["files"]}
+        spans = [(_ns(entries[f.name], "starting_time", "nanoseconds_since_epoch"),
+                  _ns(entries[f.name], "duration", "nanoseconds")) for f in files]  # fmt: skip
+        topics: dict[str, TopicInfo] = {}
+        for t in info["topics_with_message_count"]:
+            meta, count = t["topic_metadata"], t["message_count"]
+            if not (isinstance(meta["name"], str) and isinstance(meta["type"], str) and isinstance(count, int)):
+                return None
+            _merge_topic(topics, TopicInfo(meta["name"], normalize_type(meta["type"]), max(count, 0)))
+    except (KeyError, TypeError, ValueError, AttributeError):
+        return None
+    _note_decompressing(folder, files, lazily=True)
+    fmt = "ros2-mcap" if storage == "mcap" else "ros2-sqlite3"
+    return [CompressedFileSource(folder, f, fmt, t0, t0 + dur, topics if k == 0 else {}, max_bytes)
+            for k, (f, (t0, dur)) in enumerate(zip(files, spans))]
+
+
+def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
     from .safe_yaml import MAX_YAML_BYTES, check_regular_file
 
     info = _bag_info(path) if path.is_dir() else {}  # (read once: the compression of its files or messages)
     if _compression(info)[0] == "file":
-        copy = _decompressed_copy(path, info, head_s)
+        lazy = _file_sources(path, info, max_bytes)
+        if lazy is not None:
+            return lazy
+        copy = _decompressed_copy(path, info)
         try:
             sources = _open_ros2(copy, max_bytes)
         except BaseException:
