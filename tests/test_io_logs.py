@@ -361,6 +361,7 @@ def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(
     assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
     # metadata.yaml's topics and per-file entries are not trusted further than their types:
     # damaged ones read the bag as a copy made when it is opened
+    doc["rosbag2_bagfile_information"]["relative_file_paths"] = [z.name]
     for bad in ("oops", [{"path": z.name, "starting_time": {"nanoseconds_since_epoch": -5}}]):
         doc["rosbag2_bagfile_information"]["files"] = bad
         meta.write_text(yaml.safe_dump(doc))
