@@ -261,9 +261,10 @@ def _astar(blocked, sr, sc, gr, gc):
                         hf2 = np.empty(ncap)
                         hh2 = np.empty(ncap)
                         hn2 = np.empty(ncap, np.int64)
-                        hf2[:size] = hf[:size]
-                        hh2[:size] = hh[:size]
-                        hn2[:size] = hn[:size]
+                        for r in range(size):  # (element by element: a slice assignment makes numba
+                            hf2[r] = hf[r]  # compile its shape-mismatch message, seconds of a first run)
+                            hh2[r] = hh[r]
+                            hn2[r] = hn[r]
                         hf = hf2
                         hh = hh2
                         hn = hn2

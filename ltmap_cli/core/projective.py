@@ -128,7 +128,9 @@ def _pyramid(t0, use_max):
     level l - 1 (in its top-left (th >> l) x (tw >> l) corner, rounded up)."""
     th, tw = t0.shape
     pyr = np.empty((LEVELS, th, tw), dtype=np.float32)
-    pyr[0] = t0
+    for a in range(th):  # (element by element: an array assigned to a slice makes numba compile its
+        for b in range(tw):  # shape-mismatch message, string formatting, seconds of a first run's compiling)
+            pyr[0, a, b] = t0[a, b]
     ph, pw = th, tw
     for lv in range(1, LEVELS):
         nh, nw = (ph + 1) // 2, (pw + 1) // 2
@@ -459,12 +461,15 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
         if n == keys.shape[0]:
             keys2 = np.empty(2 * keys.shape[0], dtype=np.int64)
             masks2 = np.empty((2 * keys.shape[0], 8), dtype=np.uint64)
-            keys2[:n] = keys[:n]
-            masks2[:n] = masks[:n]
+            for r in range(n):  # (element by element: see _pyramid)
+                keys2[r] = keys[r]
+                for w in range(8):
+                    masks2[r, w] = masks[r, w]
             keys, masks = keys2, masks2
         if ns == skipped.shape[0]:
             skipped2 = np.empty(2 * skipped.shape[0], dtype=np.int64)
-            skipped2[:ns] = skipped[:ns]
+            for r in range(ns):
+                skipped2[r] = skipped[r]
             skipped = skipped2
         m, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys[n:],
                                        masks[n:], nxt, quiet_keys, skipped, ns)  # fmt: skip
