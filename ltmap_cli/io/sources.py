@@ -15,7 +15,8 @@ Every chunk and record is checked against ``max_bytes`` (``replay.max_message_mb
 read or decompressed, and decompression stops at the size a chunk declares (``bounded``): a log
 that declares more raises ``TooLargeError`` (a ``LogReadError``, even with --allow-truncated).
 - ROS 2 bag folder (sqlite3 or mcap storage): rosbags' rosbag2 Reader; definitions from the bag
-  when it has them, else the ROS 2 Humble type store.
+  when it has them, else the ROS 2 Humble type store. A bag compressed file by file is one
+  ``CompressedFileSource`` per file, each decompressed into TMPDIR when reading reaches it.
 - standalone MCAP: the ``mcap`` package, indexed reading in log-time order when the summary is
   intact, else a streaming pass; decoding by mcap_ros2 (ros2 profile, CDR) or mcap_ros1 (ros1).
 """
