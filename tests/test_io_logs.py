@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import re
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -424,47 +425,93 @@ def _split_compressed_bag(tmp_path: Path, parts: int = 3) -> tuple[Path, list]:
 
 
 def test_a_bag_compressed_file_by_file_is_decompressed_a_file_at_a_time(tmp_path, tmpdir_here, monkeypatch):
-    """A bag recorded in files of 10 s, each compressed: reading holds one file decompressed at
-    a time (an hour of RGB-D log needs room for one file, not the whole bag), in order, and
-    reads what the plain bag reads; message indexes count in each file. `ltmap info` on a log
-    over 1 GiB reads its first 30 s: it decompresses only the files that begin within them, and
-    its counts and times are still the whole bag's (metadata.yaml's). (Here: 3 files of 10 s,
-    the head 5 s, the size bound lowered.)"""
+    """A bag recorded in files of 10 s, each compressed: reading holds at most two files
+    decompressed (an hour of RGB-D log needs room for two files, not the whole bag): each is
+    decompressed when reading reaches it, or, once reading is half way through the file before,
+    in a read-ahead thread; it is removed once read. The messages are the plain bag's; message
+    indexes count in each file. `ltmap info` on a log over 1 GiB reads its first 30 s: it
+    decompresses only the files it reaches, and its counts and times are still the whole bag's
+    (metadata.yaml's). (Here: 3 files of 10 s, the head 3 s, the size bound lowered.)"""
+    import threading
+
     from ltmap_cli.commands import info as info_cmd
     from ltmap_cli.io import sources
 
     bag, msgs = _split_compressed_bag(tmp_path)
     plain_bag = _log(tmp_path, "ros2-sqlite3", msgs, name="plain")
     plain = _all(plain_bag)
-    made = []
+    made = []  # (file, thread)
     real = sources._decompress_file
 
-    def watched(folder, src, dst):
-        assert not list(tmpdir_here.glob("ltmap-bag-*/*"))  # the file before is gone
-        made.append(src.name)
-        real(folder, src, dst)
+    def watched(folder, src, dst, stop=None):
+        made.append((src.name, threading.current_thread().name))
+        real(folder, src, dst, stop)
+
+    def on_disk():
+        return sorted(f.name for f in tmpdir_here.glob("ltmap-bag-*/*"))
 
     monkeypatch.setattr(sources, "_decompress_file", watched)
     with open_logs([bag, plain_bag]) as logs:  # (info's formats: one per log given, not per file)
         assert logs.formats == ["ros2-sqlite3, 3 files", "ros2-sqlite3"]
     with open_logs(bag) as logs:
+        s0, s1, s2 = logs.sources
         assert [s.path.name for s in logs.sources] == [f"split_{k}.db3.zstd" for k in range(3)]
         assert logs.topics["/scan"].count == sum(m.topic == "/scan" for m in msgs)
+        # file 0 when reached; file 1 read ahead once file 0 is read half way, beside it
+        half = s0.start_ns + (s0.end_ns - s0.start_ns) // 2
+        it0 = s0.iter({"/scan"})
+        for m in it0:  # (the read-ahead starts before the message that passes half way is yielded)
+            assert (s1._ahead is None) == (m.log_time_ns < half)
+            if s1._ahead is not None:
+                break
+            assert on_disk() == ["split_0.db3"]
+        s1._ahead.join()
+        assert on_disk() == ["split_0.db3", "split_1.db3"] and s2._ahead is None
+        assert len(list(it0)) > 0 and on_disk() == ["split_1.db3"]  # file 0 read: removed
+        assert made == [("split_0.db3.zstd", "MainThread"), ("split_1.db3.zstd", "ltmap-bag-ahead")]
+        assert len(list(s1.iter({"/scan"}))) > 0 and s2._ahead is not None  # (file 1 not decompressed again)
+        s2._ahead.join()
+        assert on_disk() == ["split_2.db3"] and made[2:] == [("split_2.db3.zstd", "ltmap-bag-ahead")]
+        logs.close()  # a read-ahead never read is removed
+        assert not list(tmpdir_here.iterdir())
+    made.clear()
+    with open_logs(bag) as logs:
         where = [w for _, _, _, w in logs.raw(["/scan"])]
-    assert made == [f"split_{k}.db3.zstd" for k in range(3)]
+    assert [m[0] for m in made] == [f"split_{k}.db3.zstd" for k in range(3)]
     assert where[0].endswith("message index 0 in " + str(bag / "split_0.db3.zstd"))
     assert where[-1].endswith(" in " + str(bag / "split_2.db3.zstd"))
+    assert not list(tmpdir_here.iterdir())
     made.clear()
     got = _all(bag)
     assert [(t, lt, type(f)) for t, lt, f in got] == [(t, lt, type(f)) for t, lt, f in plain]
     assert len(made) == 3 and not list(tmpdir_here.iterdir())
+    # without room for a second file beside the first, each is decompressed when reached, after
+    # the one before is gone
+    import collections
+
+    import zstandard
+
     made.clear()
+    one = max(len(zstandard.ZstdDecompressor().decompress(f.read_bytes(), max_output_size=2**26))
+              for f in bag.glob("*.zstd"))  # fmt: skip
+    usage = collections.namedtuple("usage", "total used free")
+
+    def room_for_one_and_a_half(path):  # a disk with room for 1.5 decompressed files
+        used = sum(f.stat().st_size for f in tmpdir_here.glob("ltmap-bag-*/*"))
+        return usage(2**40, used, sources.KEEP_FREE_BYTES + int(1.5 * one) - used)
+
+    monkeypatch.setattr(shutil, "disk_usage", room_for_one_and_a_half)
+    assert len(_all(bag)) == len(plain)
+    assert made == [(f"split_{k}.db3.zstd", "MainThread") for k in range(3)]
+    monkeypatch.undo()
+    made.clear()
+    monkeypatch.setattr(sources, "_decompress_file", watched)
     monkeypatch.setattr(sources, "DECOMPRESS_NOTE", 0)
     monkeypatch.setattr(info_cmd, "INFO_FULL_BYTES", 0)
-    monkeypatch.setattr(info_cmd, "INFO_HEAD_S", 5.0)
+    monkeypatch.setattr(info_cmd, "INFO_HEAD_S", 3.0)
     with pytest.warns(Warning, match="each of its 3 files is decompressed"):
         r = info_cmd.gather([bag])
-    assert r["read_s"] == 5.0 and made == ["split_0.db3.zstd"] and not list(tmpdir_here.iterdir())
+    assert r["read_s"] == 3.0 and [m[0] for m in made] == ["split_0.db3.zstd"] and not list(tmpdir_here.iterdir())
     full = info_cmd.gather([bag], full=True)  # every file
     assert len(made) == 4
     assert {n: t["count"] for n, t in r["topics"].items()} == {n: t["count"] for n, t in full["topics"].items()}

@@ -1039,13 +1039,18 @@ DECOMPRESS_CHUNK = 8 << 20
 DECOMPRESS_NOTE = 256 << 20  # a copy of about this much or more is said before it is made
 
 
-def _decompress_file(folder: Path, src: Path, dst: Path) -> None:
+class _Stopped(Exception):
+    """A decompression told to stop (``_decompress_file``'s ``stop``)."""
+
+
+def _decompress_file(folder: Path, src: Path, dst: Path, stop: Any = None) -> None:
     """Decompress one storage file of a ROS 2 bag compressed file by file (a zstd stream) into
     ``dst`` (a file listed without ``.zstd``, as a recorder stopped before compressing its last
     one leaves it, is copied as it is), watching the disk as it fills: the copy stops with one
     line when it would leave less than ``KEEP_FREE_BYTES`` free (a few kB of zstd can claim
     terabytes), instead of filling it (rosbags' own copy failed with ENOSPC, read as a corrupt
-    bag). A damaged stream is one line too; ``dst`` is removed on failure."""
+    bag). A damaged stream is one line too; ``dst`` is removed on failure. ``stop``: a
+    ``threading.Event`` that ends the copy (``_Stopped``) when set."""
     import zstandard
 
     base = dst.parent
@@ -1055,6 +1060,8 @@ def _decompress_file(folder: Path, src: Path, dst: Path) -> None:
             reader = zstandard.ZstdDecompressor().stream_reader(fi, read_across_frames=True) \
                 if src.suffix == ".zstd" else fi  # fmt: skip
             while chunk := reader.read(DECOMPRESS_CHUNK):
+                if stop is not None and stop.is_set():
+                    raise _Stopped
                 free = shutil.disk_usage(base).free
                 if free - len(chunk) < KEEP_FREE_BYTES:
                     raise LogReadError(
@@ -1154,27 +1161,74 @@ class CompressedFileSource(Source):
     --compression-mode file``: ``*.db3.zstd`` / ``*.mcap.zstd``, split by ``--max-bag-size`` or
     ``--max-bag-duration``), decompressed into the temporary directory (``TMPDIR``) only when
     reading reaches it (the merge starts it at its first message, which metadata.yaml's ``files``
-    entry gives) and removed as soon as it is read: the disk holds one file of the bag
-    decompressed at a time (two where their times overlap), not the whole bag, and an hour of
-    RGB-D log starts mapping at once instead of after minutes of decompressing. The bag's topics
-    and counts are metadata.yaml's (``topics`` of the first file; the others add none); the
-    messages, their definitions and indexes (counted in each file) are the file's own."""
+    entry gives) and removed as soon as it is read: the disk holds at most two files of the bag
+    decompressed, not the whole bag, and an hour of RGB-D log starts mapping at once instead of
+    after minutes of decompressing. The bag's topics and counts are metadata.yaml's (``topics``
+    of the first file; the others add none); the messages, their definitions and indexes
+    (counted in each file) are the file's own.
+
+    Read-ahead: once reading is half way through a file's time span, the next file (``next``) is
+    decompressed in a thread, when the disk has room for it beside this one (its size estimated
+    from this file's ratio) and ``KEEP_FREE_BYTES``; so on a machine with cores to spare the
+    replay does not wait for each file's decompressing. It is best effort: whatever stops it
+    (the disk, a damaged stream, the run's end), the file is decompressed when reached, as
+    without it. (Not at a file's start: ``ltmap info`` reads a big log's first seconds only.)"""
+
+    next: CompressedFileSource | None = None  # the bag's next file
 
     def __init__(self, folder: Path, src: Path, fmt: str, start_ns: int, end_ns: int,
                  topics: dict[str, TopicInfo], max_bytes: int):
+        import threading
+
         self.folder, self.path, self.fmt = folder, src, fmt
         self.start_ns, self.end_ns, self.topics = start_ns, end_ns, topics
         self.max_bytes = max_bytes
         self._tmp: Path | None = None
+        self._ahead: Any = None  # the read-ahead thread
+        self._ahead_done = False  # it decompressed the file whole
+        self._stop = threading.Event()  # set: the read-ahead stops
 
-    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
+    def _dst(self) -> Path:
         import tempfile
 
-        self._tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
+        if self._tmp is None:
+            self._tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
+        return self._tmp / self.path.name.removesuffix(".zstd")
+
+    def read_ahead(self, ratio: float) -> None:
+        """Start decompressing this file in a thread (see the class), ``ratio``: decompressed
+        over compressed size of the file before."""
+        import threading
+
+        if self._ahead is not None or self._tmp is not None:
+            return
+        self._stop = threading.Event()
+        dst = self._dst()
+        need = self.path.stat().st_size * max(ratio, 1.0)
+        if shutil.disk_usage(dst.parent).free - need < KEEP_FREE_BYTES:
+            self._close()
+            return
+
+        def work() -> None:
+            try:
+                _decompress_file(self.folder, self.path, dst, self._stop)
+                self._ahead_done = True
+            except BaseException:  # noqa: BLE001 - best effort: iter() decompresses it itself
+                pass
+
+        self._ahead = threading.Thread(target=work, name="ltmap-bag-ahead", daemon=True)
+        self._ahead.start()
+
+    def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
         inner: Source | None = None
+        dst = self._dst()
         try:
-            dst = self._tmp / self.path.name.removesuffix(".zstd")
-            _decompress_file(self.folder, self.path, dst)
+            if self._ahead is not None:
+                self._ahead.join()
+                self._ahead = None
+            if not self._ahead_done:
+                _decompress_file(self.folder, self.path, dst)
+            ratio = dst.stat().st_size / max(1, self.path.stat().st_size)
             try:
                 inner = McapSource(dst, fmt=self.fmt, max_bytes=self.max_bytes) if self.fmt == "ros2-mcap" \
                     else Ros2BagSource(dst)  # fmt: skip
@@ -1183,7 +1237,13 @@ class CompressedFileSource(Source):
             except Exception as err:  # noqa: BLE001 - rosbags and sqlite3 raise several kinds
                 self.stopped_at = f"{self.path}: cannot be read ({first_line(err, 200)})"
                 return
-            yield from inner.iter(topics, skip)
+            half = self.start_ns + (self.end_ns - self.start_ns) // 2
+            ahead = self.next
+            for m in inner.iter(topics, skip):
+                if ahead is not None and m.log_time_ns >= half:
+                    ahead.read_ahead(ratio)
+                    ahead = None
+                yield m
         finally:
             if inner is not None:
                 if inner.stopped_at:
@@ -1192,6 +1252,11 @@ class CompressedFileSource(Source):
             self._close()
 
     def _close(self) -> None:
+        if self._ahead is not None:
+            self._stop.set()
+            self._ahead.join()
+            self._ahead = None
+        self._ahead_done = False
         if self._tmp is not None:
             shutil.rmtree(self._tmp, ignore_errors=True)
             self._tmp = None
@@ -1227,8 +1292,11 @@ def _file_sources(folder: Path, info: dict, max_bytes: int) -> list[Source] | No
         return None
     _note_decompressing(folder, files, lazily=True)
     fmt = "ros2-mcap" if storage == "mcap" else "ros2-sqlite3"
-    return [CompressedFileSource(folder, f, fmt, t0, t0 + dur, topics if k == 0 else {}, max_bytes)
-            for k, (f, (t0, dur)) in enumerate(zip(files, spans))]
+    out = [CompressedFileSource(folder, f, fmt, t0, t0 + dur, topics if k == 0 else {}, max_bytes)
+           for k, (f, (t0, dur)) in enumerate(zip(files, spans))]  # fmt: skip
+    for a, b in zip(out, out[1:]):
+        a.next = b
+    return out
 
 
 def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
