@@ -385,6 +385,21 @@ def test_a_damaged_or_missing_file_of_a_bag_compressed_file_by_file_is_one_line(
     assert not list(tmpdir_here.iterdir())
 
 
+def test_no_room_for_a_folder_to_decompress_into_is_one_line(tmp_path, tmpdir_here, monkeypatch):
+    import errno
+    import tempfile
+
+    packed = _log(tmp_path, "ros2-sqlite3", _mixed(), name="packed", ros2_compression="file")
+
+    def full(*_a, **_k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(tempfile, "mkdtemp", full)
+    with pytest.raises(LogReadError, match=f"cannot make a folder in {tmpdir_here} to decompress packed.db3.zstd "
+                                           f"into .*No space left on device.; set TMPDIR"):  # fmt: skip
+        _all(packed)
+
+
 def _split_compressed_bag(tmp_path: Path, parts: int = 3) -> tuple[Path, list]:
     """A sqlite3 bag recorded in ``parts`` files of 10 s (rosbag2 --max-bag-duration 10), each
     compressed (--compression-mode file), with metadata.yaml's per-file entries as rosbag2 writes

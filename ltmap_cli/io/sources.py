@@ -1192,7 +1192,12 @@ class CompressedFileSource(Source):
         import tempfile
 
         if self._tmp is None:
-            self._tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
+            try:
+                self._tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
+            except OSError as err:
+                raise LogReadError(f"ROS 2 bag {self.folder} is compressed file by file: cannot make a folder in "
+                                   f"{tempfile.gettempdir()} to decompress {self.path.name} into ({first_line(err)}); "
+                                   f"set TMPDIR to a folder on a disk with room") from None  # fmt: skip
         return self._tmp / self.path.name.removesuffix(".zstd")
 
     def read_ahead(self, ratio: float) -> None:
@@ -1203,7 +1208,10 @@ class CompressedFileSource(Source):
         if self._ahead is not None or self._tmp is not None:
             return
         self._stop = threading.Event()
-        dst = self._dst()
+        try:
+            dst = self._dst()
+        except LogReadError:
+            return  # (said when reading reaches the file)
         need = self.path.stat().st_size * max(ratio, 1.0)
         if shutil.disk_usage(dst.parent).free - need < KEEP_FREE_BYTES:
             self._close()
