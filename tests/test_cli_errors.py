@@ -177,6 +177,7 @@ def _replay_until(tmp_path, out, fraction, *extra):
     raise AssertionError("".join(lines))
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_ctrl_c_maps_what_was_read_and_a_second_one_writes_nothing(tmp_path):
     """Ctrl-C once: the replay stops reading, writes the outputs of the log read so far (a complete
     folder: report.json says where it stopped) and says how to go on; status 130. Twice: it stops

@@ -12,6 +12,7 @@ period's ticks, and the buffer no bigger than it started.
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from test_speed_quiet import _frames
 
 from ltmap_cli.core.config import MapConfig
@@ -42,6 +43,7 @@ def _rows(ev: EventLog, periodic: bool) -> np.ndarray:
     return np.concatenate([hi[sel].astype(np.float64), hv[sel].astype(np.float64)], axis=1)
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_history_stays_bounded_and_keeps_transitions_whole():
     frames = _frames(600, seed=11)
     full, small = _run(frames, bounded=False), _run(frames, bounded=True)

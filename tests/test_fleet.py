@@ -298,6 +298,7 @@ def room_map(path: Path) -> Path:
     return write_trinary(path, occ)
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_a_small_batch_equals_the_hand_replays_and_a_rerun_skips_complete_days(tmp_path):
     static = room_map(tmp_path / "maps" / "room.yaml")
     manifest = write_manifest(
@@ -386,6 +387,7 @@ def test_the_local_engine_starts_without_a_warning_when_port_8787_is_taken():
     assert not [w for w in caught if "already in use" in str(w.message)]
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_a_failing_log_is_retried_once_then_reported_and_the_other_sites_complete(tmp_path):
     bad = tmp_path / "broken.mcap"
     bad.write_bytes(b"\x89MCAP0\r\n" + b"not a log" * 100)

@@ -613,6 +613,7 @@ def test_simulate_follows_the_same_rules(tmp_path):
     assert OutputFolder.completed(bag)["seed"] == 2
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_a_killed_replays_last_snapshot_is_kept_with_the_command_that_maps_the_rest(tmp_path):
     """A replay killed (SIGKILL) after its first periodic snapshots: the next run into the same
     folder removes the killed run's staging folder, as always, but first keeps its last state

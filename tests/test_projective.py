@@ -279,7 +279,7 @@ def test_projection_listed_in_chunks_is_the_same(monkeypatch):
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
 
 
-@pytest.mark.parametrize("seed", range(6))
+@pytest.mark.parametrize("seed", [0, 1, *(pytest.param(s, marks=pytest.mark.slow) for s in range(2, 6))])  # (4 in the slow tier)
 def test_random_depth_images_hit_the_same_voxels(seed):
     """Seeded random depth images (a wall, boxes at random depths, holes, pixels beyond max range,
     both encodings) from random poses: one frame into an empty map marks the same occupied voxels

@@ -277,6 +277,7 @@ def _same_maps(a: LayeredMap, b: LayeredMap) -> None:
         assert np.array_equal(x, y)
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_fast_threaded_replay_equals_serial_replay(tmp_path):
     if not HOUSE.exists():
         pytest.skip("house sample missing")
@@ -314,6 +315,7 @@ def test_any_number_of_ray_workers_gives_the_serial_map(tmp_path):
         assert rep["events"]["list"] == rep_s["events"]["list"]
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_fast_serial_replay_equals_serial_replay(tmp_path):
     if not HOUSE.exists():
         pytest.skip("house sample missing")
@@ -322,6 +324,7 @@ def test_fast_serial_replay_equals_serial_replay(tmp_path):
     _same_maps(a.lmap, b.lmap)
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_depth_max_rate_drops_frames_before_integration(tmp_path):
     if not HOUSE.exists():
         pytest.skip("house sample missing")

@@ -15,6 +15,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from ltmap_cli.config import Config
 from ltmap_cli.core.layers import LayeredMap
@@ -167,6 +168,7 @@ def test_quiet_blocks_follow_a_loaded_state_and_new_long_term_seeds():
     assert ref.frame_id == 60
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 def test_replay_serial_and_threaded_same_map_with_quiet_blocks(tmp_path):
     outs = {}
     for name, (fast, threads) in {"serial": (False, False), "threads": (True, True)}.items():

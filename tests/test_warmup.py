@@ -44,6 +44,7 @@ print(json.dumps({k: [before.get(k, 0), n] for k, n in kernels().items() if n !=
 """
 
 
+@pytest.mark.slow  # (end to end: the default tier stays under 5 minutes on a slow 2-core machine)
 @pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
 def test_replay_compiles_nothing_the_warm_up_did_not(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
