@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -137,6 +138,45 @@ def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, ded
         assert kinds == ({1} if max_range == 1.6 else {1, 2})  # at 1.6 m the wall is cut: no hit
         if dedupe:
             assert len(k2) < 0.2 * h * w  # mostly repeats: the shortcuts had work to do
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_fused_depth_kernel_pixels_at_max_range(encoding):
+    """The kernel's vectorized pass marks the pixels within 1e-9 of max_range or beyond, and cuts
+    them after it, one by one. max_range set to the exact length of chosen pixels' rays (as
+    classify_rays computes it): those are not cut (still hits); set a hair (5e-10) short of it:
+    they are; bit for bit the serial steps' rays, with and without dedupe."""
+    rng = np.random.default_rng(11)
+    h, w = 60, 80
+    raw16 = rng.uniform(500, 6000, size=(h, w)).astype(np.uint16)
+    if encoding == "16UC1":
+        raw = raw16
+        depth = raw16.astype(np.float32) * np.float32(0.001)
+    else:
+        raw = raw16.astype(np.float32) * np.float32(0.00113)
+        depth = raw.copy()
+    T = _pose(rng)
+    pts = transform_points(T, depth_to_points(depth, 70.0, 71.0, 39.5, 29.5))
+    length = np.sqrt(((pts - T[:3, 3]) ** 2).sum(axis=1))
+    order = np.argsort(length)
+    for at, eps in itertools.product((len(order) // 3, len(order) // 2, (9 * len(order)) // 10), (0.0, 5e-10)):
+        # eps 0: exactly this pixel's length, not cut; 5e-10: the pixel a hair beyond, cut
+        max_range = float(length[order[at]]) * (1.0 - eps)
+        n_cut = int((length > max_range).sum())
+        assert 0 < n_cut < len(length)
+        for dedupe in (False, True):
+            lmap = LayeredMap()
+            lmap.cfg.sensor.ground_tolerance = -1.0
+            e1, k1 = lmap.rays(T[:3, 3], pts, None, max_range, None, dedupe)
+            e2, k2 = lmap.depth_rays(raw, 70.0, 71.0, 39.5, 29.5, T, max_range, None, dedupe)
+            keep = k1 > 0
+            assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+            if not dedupe:  # every pixel a ray: those beyond max_range are cut (clear), the rest hit
+                assert k2[order[at]] == (2 if eps == 0.0 else 1)
+                assert (k2 == 1).sum() == n_cut
+                cut = length > max_range
+                reach = np.sqrt(((e2[cut] - T[:3, 3]) ** 2).sum(axis=1))
+                assert np.allclose(reach, max_range, rtol=1e-12, atol=0)
 
 
 def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
