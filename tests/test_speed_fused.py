@@ -142,10 +142,10 @@ def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, ded
 
 @pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
 def test_fused_depth_kernel_pixels_at_max_range(encoding):
-    """The kernel's vectorized pass marks the pixels within 1e-9 of max_range or beyond, and cuts
-    them after it, one by one. max_range set to the exact length of chosen pixels' rays (as
-    classify_rays computes it): those are not cut (still hits); set a hair (5e-10) short of it:
-    they are; bit for bit the serial steps' rays, with and without dedupe."""
+    """The kernel skips the square root of the max-range cut below (1 - 1e-9) max_range and cuts
+    beyond max_range exactly as classify_rays does. max_range set to the exact length of chosen
+    pixels' rays (as classify_rays computes it): those are not cut (still hits); set a hair
+    (5e-10) short of it: they are; bit for bit the serial steps' rays, with and without dedupe."""
     rng = np.random.default_rng(11)
     h, w = 60, 80
     raw16 = rng.uniform(500, 6000, size=(h, w)).astype(np.uint16)

@@ -603,20 +603,6 @@ def _dedupe_key(i, j, k, hit):
     return pack_block(i, j, k) * 2 + (1 if hit else 0)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _end_key(px, py, pz, hit, inv_res):
-    """``_dedupe_key`` of an end point. Its voxel through int32 (keys are within +-2^20): AVX2
-    has no vector conversion of doubles to int64, so int64 made the vectorized pass convert one
-    lane at a time."""
-    i = np.int32(np.floor(px * inv_res))
-    j = np.int32(np.floor(py * inv_res))
-    k = np.int32(np.floor(pz * inv_res))
-    return _dedupe_key(i, j, k, hit)
-
-
-FAR_MARK = 2  # added to a pixel's kind in _depth_rays_pass' first pass: it may reach beyond max_range
-
-
 @njit(cache=True, nogil=True)
 def dedupe_endpoints(ends, kind, inv_res):
     """Keep one ray per (end voxel, kind): later duplicates become RAY_SKIP (in place).
@@ -663,11 +649,9 @@ def _depth_rays_pass(
     (empty, empty, False) when more than cap / 2 end voxels turn up.
 
     Row by row in two passes. The first has no branches, so the compiler vectorizes it (hence
-    ``error_model="numpy"``: no zero-division checks): every pixel's end point, its kind and its
-    dedupe key, with the arithmetic of ``classify_rays`` and ``dedupe_endpoints``; then the
-    max-range cut for the pixels that may reach beyond max_range, one by one (few: none in a
-    room, 5 % of a 20 m hall's pixels; computed for every pixel in the vectorized pass, its square
-    root and division took a third of it on an AMD Zen 3). It
+    ``error_model="numpy"``: no zero-division checks): every pixel's end point after the
+    max-range cut, its kind and its dedupe key, with the arithmetic of ``classify_rays`` and
+    ``dedupe_endpoints`` (the cut is computed for every pixel and used only beyond max_range). It
     also marks the pixels whose key equals that of one of the three pixels before it or of the
     five nearest above it (near the row's ends: those that exist): those keys are in the dedupe
     set already, so the pixel adds nothing. The second pass walks the row's other pixels in order (an index list, no branch per pixel)
@@ -695,8 +679,7 @@ def _depth_rays_pass(
     xr = np.empty(w, dtype=np.float64)  # (u - cx) / fx, as depth_to_points computes it
     for u in range(w):
         xr[u] = (np.float64(u) - cx) / fx
-    # a ray is cut only beyond max_range: below this squared length it surely is not (the square
-    # root and the division only for the pixels beyond it, after the vectorized pass)
+    # a ray is cut only beyond max_range: below this squared length it surely is not (no sqrt)
     safe2 = (max_range * (1.0 - 1e-9)) ** 2 if max_range > 0.0 else np.inf
     use_ground = ground_tol >= 0.0
     # row buffers: end point, kind, dedupe key, is a ray; the row above's keys; pixels to look up
@@ -729,33 +712,31 @@ def _depth_rays_pass(
             valid = valid & np.isfinite(px) & np.isfinite(py) & np.isfinite(pz)
             dx, dy, dz = px - ox, py - oy, pz - oz
             d2 = dx * dx + dy * dy + dz * dz
-            far = valid & (d2 >= safe2)  # may reach beyond max_range: its kind is marked, for the cut below
+            safe = d2 < safe2
+            # the max-range cut of classify_rays, computed for every pixel, used beyond max_range
+            length = np.sqrt(d2)
+            cut = (max_range > 0.0) & (length > max_range) & (not safe)
+            sc = max_range / length
+            px = (ox + dx * sc) if cut else px
+            py = (oy + dy * sc) if cut else py
+            pz = (oz + dz * sc) if cut else pz
             lx = f00 * px + f01 * py + f02 * pz + f03
             ly = f10 * px + f11 * py + f12 * pz + f13
             lz = f20 * px + f21 * py + f22 * pz + f23
             in_fp = use_fp & (bx0 <= lx) & (lx <= bx1) & (by0 <= ly) & (ly <= by1) & (bz0 <= lz) & (lz <= bz1)
-            hit = not ((use_ground & (abs(pz) <= ground_tol)) | in_fp)
+            hit = not ((use_ground & (abs(pz) <= ground_tol)) | in_fp | cut)
+            # the voxel through int32 (keys are within +-2^20): AVX2 has no vector conversion of
+            # doubles to int64, so int64 here made the loop convert one lane at a time (10 % of
+            # the kernel on an AMD Zen 3)
+            i = np.int32(np.floor(px * inv_res))
+            j = np.int32(np.floor(py * inv_res))
+            k = np.int32(np.floor(pz * inv_res))
             rx[u] = px
             ry[u] = py
             rz[u] = pz
-            # (the mark rides in the kind: a bool array of its own stopped the loop's vectorizing)
-            rkind[u] = (RAY_HIT if hit else RAY_CLEAR) + (FAR_MARK if far else 0)
-            key[u] = _end_key(px, py, pz, hit, inv_res)
+            rkind[u] = RAY_HIT if hit else RAY_CLEAR
+            key[u] = _dedupe_key(i, j, k, hit)
             ok[u] = valid
-        n_far = 0
-        for u in range(w):  # the pixels that may reach beyond max_range, in order (no branch)
-            idx[n_far] = u
-            n_far += np.int64(rkind[u] > FAR_MARK)
-        for q in range(n_far):  # classify_rays' max-range cut: the end at max_range marks nothing
-            u = idx[q]
-            rkind[u] -= FAR_MARK
-            dx, dy, dz = rx[u] - ox, ry[u] - oy, rz[u] - oz
-            length = np.sqrt(dx * dx + dy * dy + dz * dz)
-            if max_range > 0.0 and length > max_range:
-                sc = max_range / length
-                rx[u], ry[u], rz[u] = ox + dx * sc, oy + dy * sc, oz + dz * sc
-                rkind[u] = RAY_CLEAR
-                key[u] = _end_key(rx[u], ry[u], rz[u], False, inv_res)
         if dedupe:  # pass 1b: pixels whose key is surely in the set already
             for u in range(3, w - 2):  # every neighbour exists: no branches (vectorized)
                 kk = key[u]
