@@ -261,8 +261,9 @@ def _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, 
     pz0 = Tinv[2, 0] * cx0 + Tinv[2, 1] * cy0 + Tinv[2, 2] * cz0 + Tinv[2, 3]
     ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2 = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
     g = 0.5 * (BLOCK - 1)  # the block's centre, in voxel steps from voxel (0, 0, 0)
+    # (np.int64: a literal 8 made numba compile _classify a second time, beside _block_fill's quarters)
     cls, _, _ = _classify(px0 + (ex0 + ey0 + ez0) * g, py0 + (ex1 + ey1 + ez1) * g, pz0 + (ex2 + ey2 + ez2) * g,
-                          BLOCK, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
+                          np.int64(BLOCK), ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
                           planes, tmin, tmax)  # fmt: skip
     return cls, px0, py0, pz0
 
@@ -455,8 +456,9 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     keys = np.empty(cap, dtype=np.int64)
     masks = np.empty((cap, 8), dtype=np.uint64)
     skipped = np.empty(cap, dtype=np.int64)
-    n, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, 0,
-                                   quiet_keys, skipped, 0)  # fmt: skip
+    zero = np.int64(0)  # (not a literal 0: numba would compile projective_blocks twice, 1.2 s)
+    n, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, zero,
+                                   quiet_keys, skipped, zero)  # fmt: skip
     while nxt >= 0:  # full: twice the room, and on from the block it stopped at
         if n == keys.shape[0]:
             keys2 = np.empty(2 * keys.shape[0], dtype=np.int64)
