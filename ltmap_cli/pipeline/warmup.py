@@ -12,7 +12,8 @@ on two cores waits for about half the compiling instead of all of it, and a log 
 checks (a missing transform) fails before any compiling is waited for. The children write
 numba's cache; the replay then loads the kernels from it. A kernel that two groups call is
 compiled in both children, so each group makes its map without the others' kernels (``maps``
-seeds D instead of casting rays); only the grid's block lookups (0.3 s) are in both.
+seeds D instead of casting rays); only the grid's block lookups (0.3 s) and O's updates (2 s)
+are in two. The depth groups leave the voxels rays pass to ``rays``, which every replay warms.
 """
 
 from __future__ import annotations
@@ -84,19 +85,29 @@ def warm_planner(cfg: MapConfig) -> None:
 def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
     """The fused depth kernel for raw pixels of ``dtype``, C-contiguous or a strided view (numba
     compiles one specialization per dtype and layout), and with projective depth integration the
-    projection's kernels."""
+    projection's kernels and the map thread's use of them. Not the voxels rays pass
+    (``frame_voxels``, 10 s of compiling): the ``rays`` group compiles them, in every replay,
+    with the same types (this group took 44.6 s alone with them, 32.4 s without; in a first run
+    this group mostly loaded them from the cache the ``rays`` child had written by then, so the
+    cold replay measured the same, 47 s on an AMD Zen 3 VM, but it no longer depends on that
+    race)."""
     m = LayeredMap(cfg)
     depth = np.full((2, 4), 1000 if np.dtype(dtype).kind == "u" else 1.0, dtype=dtype)
     depth = depth[:, :2] if contiguous else depth[:, ::2]
     if contiguous:
         depth = np.ascontiguousarray(depth)
-    m.integrate_depth(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
-    if m.cfg.sensor.depth_integration == "projective":  # and the map thread's fill of blocks a worker
-        # skipped as quiet that are quiet no more: every block listed as quiet, none is
-        m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
-        m.integrate_depth(depth, 1.0, 1.0, 0.5, 0.5, _pose(), 4.0, _pose())
-        # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
-        quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().quiet)
+    T = _pose()
+    ends, _ = m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T, dedupe=m.cfg.sensor.dedupe_dense)
+    if m.cfg.sensor.depth_integration != "projective":
+        return
+    none = np.empty(0, dtype=np.int64)
+    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
+    # the map thread's fill of blocks a worker skipped as quiet that are quiet no more: every
+    # block listed as quiet, none is
+    m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
+    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
+    # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
+    quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().quiet)
 
 
 GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
