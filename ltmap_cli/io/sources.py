@@ -1130,14 +1130,14 @@ def _note_decompressing(folder: Path, files: list[Path], lazily: bool) -> None:
                   stacklevel=3)
 
 
-def _decompressed_copy(folder: Path, info: dict) -> Path:
+def _decompressed_copy(folder: Path, info: dict, files: list[Path]) -> Path:
     """A ROS 2 bag compressed file by file whose metadata.yaml does not say when each file
-    begins (``_file_sources`` needs that): all its files decompressed into a new folder under
-    the temporary directory (``TMPDIR``), beside a metadata.yaml that says they are not
-    compressed; returns it. sqlite3 cannot read a stream, and an MCAP is read by seeking."""
+    begins (``_file_sources`` needs that): all its ``files`` (``_compressed_files``) decompressed
+    into a new folder under the temporary directory (``TMPDIR``), beside a metadata.yaml that says
+    they are not compressed; returns it. sqlite3 cannot read a stream, and an MCAP is read by
+    seeking."""
     import tempfile
 
-    files = _compressed_files(folder, info)
     _note_decompressing(folder, files, lazily=False)
     tmp = Path(tempfile.mkdtemp(prefix="ltmap-bag-", dir=tempfile.gettempdir()))
     try:
@@ -1277,12 +1277,11 @@ def _ns(entry: Any, key: str, unit: str) -> int:
     return value
 
 
-def _file_sources(folder: Path, info: dict, max_bytes: int) -> list[Source] | None:
-    """The files of a ROS 2 bag compressed file by file as ``CompressedFileSource`` items, each
-    decompressed when reached; None when metadata.yaml lacks what that needs (each file's
-    starting time and duration, the topics and their types: rosbag2 writes them since Foxy's
-    successors; ``_decompressed_copy`` then copies the whole bag first)."""
-    files = _compressed_files(folder, info)
+def _file_sources(folder: Path, info: dict, files: list[Path], max_bytes: int) -> list[Source] | None:
+    """The ``files`` of a ROS 2 bag compressed file by file (``_compressed_files``) as
+    ``CompressedFileSource`` items, each decompressed when reached; None when metadata.yaml lacks
+    what that needs (each file's starting time and duration, the topics and their types: rosbag2
+    writes them since Foxy's successors; ``_decompressed_copy`` then copies the whole bag first)."""
     storage = str(info.get("storage_identifier", ""))
     if storage not in ("sqlite3", "mcap"):
         return None
@@ -1312,10 +1311,11 @@ def _open_ros2(path: Path, max_bytes: int) -> list[Source]:
 
     info = _bag_info(path) if path.is_dir() else {}  # (read once: the compression of its files or messages)
     if _compression(info)[0] == "file":
-        lazy = _file_sources(path, info, max_bytes)
+        files = _compressed_files(path, info)
+        lazy = _file_sources(path, info, files, max_bytes)
         if lazy is not None:
             return lazy
-        copy = _decompressed_copy(path, info)
+        copy = _decompressed_copy(path, info, files)
         try:
             sources = _open_ros2(copy, max_bytes)
         except BaseException:
