@@ -121,6 +121,30 @@ def test_progress_line_gives_the_time_left_at_the_speed_so_far():
         assert "left" not in out.getvalue() and PROGRESS.match(out.getvalue().strip())
 
 
+def test_progress_speed_leaves_out_the_first_runs_compiling(tmp_path):
+    """The bar's speed and time left are the mapping's: the kernels' warm-up (a first run's
+    compiling, stage ``warmup``) is not counted as time spent on the log."""
+    import io
+    import time
+
+    from ltmap_cli.commands.replay import ProgressBar
+    from ltmap_cli.config import Config
+    from ltmap_cli.pipeline.replay import NS, Replay, ReplayRequest
+
+    seen = []
+    run = Replay(Config(), ReplayRequest([LOG], tmp_path / "out"), progress=seen.append)
+    run.log_total_s = 100.0
+    run._t_wall0 = time.perf_counter() - 50.0  # 50 s since the run began, 40 of them compiling
+    run.timer.add("warmup", 40.0)
+    run._report_progress(20 * NS, force=True)  # 20 s of log mapped in the other 10 s: 2x
+    p = seen[-1]
+    assert 10.0 <= p.wall_s < 10.5 and 1.9 < p.speed <= 2.0
+    out = io.StringIO()
+    ProgressBar(out)(p)
+    m = PROGRESS.match(out.getvalue().strip())
+    assert m and m["left"] in ("40 s", "39 s"), out.getvalue()  # 80 s of log at 2x
+
+
 def test_config_yaml_names_the_inputs_and_repeats_the_run(tmp_path):
     """config.yaml holds the parameters; its header comment names the inputs (logs, --static,
     --resume), which are not parameters. Running the header's command gives the same map."""

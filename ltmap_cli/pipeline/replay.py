@@ -70,7 +70,7 @@ class Progress:
     log_done_s: float
     log_total_s: float
     frames: int
-    wall_s: float
+    wall_s: float  # since the run began, the kernels' warm-up left out (a first run's compiling: not mapping)
     phase: str | None = None  # a step that is not mapping the log (compiling kernels, writing plots)
 
     @property
@@ -582,8 +582,10 @@ class Replay:
         self._last_progress = now
         if log_ns is not None:
             self._done_s = min(max((log_ns - self._window_start_ns) / NS, 0.0), self.log_total_s)
-        self.progress(Progress(self._done_s, self.log_total_s, sum(self.counts.used.values()), now - self._t_wall0,
-                               phase))  # fmt: skip
+        # the speed and time left are those of mapping: a first run's half minute of compiling
+        # made the bar say 0.2x real time and four times the time left
+        wall = now - self._t_wall0 - self.timer.seconds["warmup"]
+        self.progress(Progress(self._done_s, self.log_total_s, sum(self.counts.used.values()), wall, phase))
 
 
 STAMP_JUMP_NS = 10**9  # header stamps going back more than this (a clock reset) are reported
