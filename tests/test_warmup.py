@@ -63,3 +63,16 @@ def test_replay_groups():
     cfg.replay.mcap_out, cfg.replay.plan_goal = True, [1.0, 2.0]
     assert replay_groups(cfg.replay) == ["rays", "maps", "fused_scan", "planner"]
     assert set(replay_groups(cfg.replay, raw_depth=True)) <= set(GROUPS)
+
+
+def test_background_compile_says_each_group_ended():
+    """A first run waits for its compiling children; ``wait`` reports each one that ends (the
+    progress line then says "1 of 3 kernel groups compiled", so half a minute is not silence)."""
+    from ltmap_cli.pipeline.warmup import BackgroundCompile
+
+    bc = BackgroundCompile([])  # no groups: children of our own, ending one after another
+    bc.procs = [subprocess.Popen([sys.executable, "-c", f"import time; time.sleep({d})"]) for d in (0.6, 0.0, 0.3)]
+    seen = []
+    bc.wait(lambda ended, total: seen.append((ended, total)), poll_s=0.05)
+    assert seen[-1] == (3, 3) and [e for e, _ in seen] == sorted({e for e, _ in seen})  # rising, each once
+    assert len(seen) >= 2 and bc.procs == []  # (two ending within one poll are said together)

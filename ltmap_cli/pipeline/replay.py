@@ -63,6 +63,7 @@ from .timing import StageTimer
 from .warmup import BackgroundCompile, kernels_cached, replay_groups, warm_depth, warm_up
 
 NS = 1_000_000_000
+COMPILING = "compiling kernels (first run only)"  # the progress's phase while a first run waits for them
 
 
 @dataclass
@@ -518,8 +519,9 @@ class Replay:
         self._warm = True
         with self.timer("warmup"):
             if self._compile is not None:
-                self._report_progress(None, force=True, phase="compiling kernels (first run only)")
-                self._compile.wait()
+                self._report_progress(None, force=True, phase=COMPILING)
+                self._compile.wait(lambda ended, total: self._report_progress(
+                    None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))
             warm_up(self.cfg.map, replay_groups(self.cfg.replay))  # (the depth kernels: at their first frame)
 
     def _integrate(self, placed: Placed, cast: CastFrame, wait_s: float | None) -> None:

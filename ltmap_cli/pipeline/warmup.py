@@ -21,6 +21,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -157,9 +158,18 @@ class BackgroundCompile:
             self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, g], stdin=subprocess.DEVNULL,
                                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
 
-    def wait(self) -> None:
-        for p in self.procs:
-            p.wait()
+    def wait(self, on_done=None, poll_s: float = 0.2) -> None:
+        """Until every child has ended; ``on_done(ended, total)`` each time one more has (a first
+        run's half minute of compiling says that it moves)."""
+        total, ended = len(self.procs), 0
+        while ended < total:
+            now = sum(p.poll() is not None for p in self.procs)
+            if now == ended:
+                time.sleep(poll_s)
+                continue
+            ended = now
+            if on_done is not None:
+                on_done(ended, total)
         self.procs = []
 
     def stop(self) -> None:
