@@ -64,3 +64,7 @@ def test_the_summary_of_a_long_replay_gives_clocks():
         "replayed 3:00:00.0 of log in 36:44.1 (4.9x real time end to end; mapping alone 5.0x): 10 frames used")
     assert summary_line({**rep, "log_duration_s": 30.0, "wall_time_s": 6.2}).startswith(
         "replayed 30.0 s of log in 6.2 s (4.9x")
+    # a first run: how much of it was compiling (under a second, a cache load: not said)
+    first = {**rep, "log_duration_s": 50.0, "wall_time_s": 45.1, "kernels_compiled_s": 38.8}
+    assert "mapping alone 5.0x; 39 s of it compiling kernels, first run only): 10 frames" in summary_line(first)
+    assert "compiling" not in summary_line({**first, "kernels_compiled_s": 0.4})

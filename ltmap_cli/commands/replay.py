@@ -33,14 +33,17 @@ def time_left(log_left_s: float, speed: float) -> str:
 
 
 def summary_line(report: dict) -> str:
-    """The line a replay ends with (stdout); an hour of log or more gives its times as clocks."""
+    """The line a replay ends with (stdout); an hour of log or more gives its times as clocks; a
+    first run says how much of its time was the kernels' compiling (which the next runs skip)."""
     used = sum(report["frames_used"].values())
     skipped = sum(report["frames_skipped"].values())
     log_s, wall_s = report["log_duration_s"], report["wall_time_s"]
     took = (f"{clock(log_s)} of log in {clock(wall_s)}" if log_s >= LONG_LOG_S else
             f"{log_s:.1f} s of log in {wall_s:.1f} s")  # fmt: skip
+    compiled = report.get("kernels_compiled_s", 0.0)
+    first = f"; {compiled:.0f} s of it compiling kernels, first run only" if compiled >= 1.0 else ""
     return (f"replayed {took} ({report['speed_vs_real_time']}x real time end to end; mapping alone "
-            f"{report['mapping_speed_vs_real_time']}x): {used} frames used, {skipped} skipped, "
+            f"{report['mapping_speed_vs_real_time']}x{first}): {used} frames used, {skipped} skipped, "
             f"{report['voxels']['long_term_occupied']} long-term voxels")
 
 

@@ -177,6 +177,7 @@ class Replay:
         self.log_total_s = 0.0
         self._window_start_ns = 0  # the first log time mapped (the log's first message, or replay.start_s after it)
         self._warm = False
+        self._compile_wait_s = 0.0  # the wait for a first run's compiling children (report.json kernels_compiled_s)
         self._stop = threading.Event()
         self._workers_cpu_s = 0.0  # CPU seconds of the ray workers (report.json thread_cpu_s)
         self._reader_cpu_s = 0.0
@@ -425,6 +426,7 @@ class Replay:
             speed_vs_real_time=round(total / wall, 2) if wall > 0 else None,
             mapping_wall_time_s=round(mapping_wall, 3),
             mapping_speed_vs_real_time=round(total / mapping_wall, 2) if mapping_wall > 0 else None,
+            kernels_compiled_s=round(self._compile_wait_s, 3),
             stage_s=timer.rounded(),
             ray_workers=self.executor.workers,
             thread_cpu_s={"main": round(time.thread_time() - self._cpu0[0], 3),
@@ -520,8 +522,10 @@ class Replay:
         with self.timer("warmup"):
             if self._compile is not None:
                 self._report_progress(None, force=True, phase=COMPILING)
+                t0 = time.perf_counter()
                 self._compile.wait(lambda ended, total: self._report_progress(
                     None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))
+                self._compile_wait_s = time.perf_counter() - t0
             warm_up(self.cfg.map, replay_groups(self.cfg.replay))  # (the depth kernels: at their first frame)
 
     def _integrate(self, placed: Placed, cast: CastFrame, wait_s: float | None) -> None:

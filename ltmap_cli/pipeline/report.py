@@ -31,6 +31,7 @@ class Report:
     speed_vs_real_time: float | None  # log time / wall_time_s
     mapping_wall_time_s: float  # up to the map's last snapshot (before map files, events, plots)
     mapping_speed_vs_real_time: float | None
+    kernels_compiled_s: float  # of the wall time, waiting for the kernels' compiling (a first run); 0 when cached
     stage_s: dict  # stage -> wall seconds (pipeline/timing.py)
     ray_workers: int  # threads that computed the frames' rays (replay.workers; 0: the serial path)
     # CPU seconds by thread up to the report: the map thread ("main": integration, ticks, outputs,
