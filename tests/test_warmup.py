@@ -76,3 +76,50 @@ def test_background_compile_says_each_group_ended():
     bc.wait(lambda ended, total: seen.append((ended, total)), poll_s=0.05)
     assert seen[-1] == (3, 3) and [e for e, _ in seen] == sorted({e for e, _ in seen})  # rising, each once
     assert len(seen) >= 2 and bc.procs == []  # (two ending within one poll are said together)
+
+
+def _literal(node):
+    """The value of a literal bool / int argument (numba types it as a literal when the call is
+    made from a kernel), else None."""
+    import ast
+
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        v = _literal(node.operand)
+        return None if v is None else -v
+    if isinstance(node, ast.Constant) and isinstance(node.value, (bool, int)):
+        return node.value
+    return None
+
+
+def test_kernels_are_not_compiled_once_per_literal():
+    """A kernel called from kernels with a literal argument (``f(x, True)``) is compiled for that
+    literal: called elsewhere with another literal, or with a variable, it is compiled twice (each
+    one a second or more of a first run's compiling: ``_pyramid``, ``_tiles_query``,
+    ``projective_blocks`` and ``_classify`` were). Every call site inside the package's kernels is
+    read: an argument position gets one literal value, or none (a kernel inlined into its callers
+    is not compiled on its own)."""
+    import ast
+
+    calls: dict[str, dict] = {}  # kernel -> argument position -> {literal values, or "variable"}
+    kernels = set()
+    trees = {f: ast.parse(f.read_text()) for f in sorted((ROOT / "ltmap_cli").rglob("*.py"))}
+
+    def is_kernel(fn):
+        return any("njit" in ast.unparse(d) for d in fn.decorator_list)
+
+    for tree in trees.values():  # (one inlined into its callers, ``inline="always"``, is no compiled function)
+        kernels |= {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and is_kernel(n)
+                    and not any("inline=" in ast.unparse(d) for d in n.decorator_list)}  # fmt: skip
+    for tree in trees.values():
+        for fn in (n for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and is_kernel(n)):
+            for call in (n for n in ast.walk(fn) if isinstance(n, ast.Call) and isinstance(n.func, ast.Name)):
+                if call.func.id not in kernels:
+                    continue
+                seen = calls.setdefault(call.func.id, {})
+                for pos, arg in [*enumerate(call.args), *((k.arg, k.value) for k in call.keywords)]:
+                    v = _literal(arg)
+                    seen.setdefault(pos, set()).add("variable" if v is None else repr(v))
+    assert calls.get("_tiles_query") and calls.get("_pyramid")  # (the scan sees the call sites)
+    twice = {f"{name}, argument {pos}: {sorted(kinds)}" for name, seen in calls.items() for pos, kinds in seen.items()
+             if len(kinds) > 1 and kinds != {"variable"}}  # fmt: skip
+    assert not twice

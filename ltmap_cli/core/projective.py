@@ -106,7 +106,9 @@ def depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band):
                 b = max(b, x)
             tmin[tr, t] = min(tmin[tr, t], a)
             tmax[tr, t] = max(tmax[tr, t], b)
-    pmax = _pyramid(tmax, True)
+    # (the flag through np.int64, not a literal bool: numba compiled each of _pyramid and
+    # _tiles_query twice, once per literal, 2 s of a first run's compiling)
+    pmax = _pyramid(tmax, np.int64(1))
     nh, nw = (th + 1) >> 1, (tw + 1) >> 1
     dil = np.empty((nh, nw), dtype=np.float32)  # the greatest range over the 3 x 3 level-1 tiles around
     for a in range(nh):
@@ -116,7 +118,7 @@ def depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band):
                 for db in range(max(b - 1, 0), min(b + 2, nw)):
                     m = max(m, pmax[1, da, db])
             dil[a, b] = m
-    return out, _pyramid(tmin, False), pmax, dil
+    return out, _pyramid(tmin, np.int64(0)), pmax, dil
 
 
 LEVELS = 6  # tile pyramid levels: tiles of TILE, 2 TILE, ... 32 TILE pixels
@@ -124,8 +126,8 @@ LEVELS = 6  # tile pyramid levels: tiles of TILE, 2 TILE, ... 32 TILE pixels
 
 @njit(cache=True, nogil=True)
 def _pyramid(t0, use_max):
-    """(LEVELS, th, tw): level 0 the tiles ``t0``, level l the max (or min) over 2 x 2 tiles of
-    level l - 1 (in its top-left (th >> l) x (tw >> l) corner, rounded up)."""
+    """(LEVELS, th, tw): level 0 the tiles ``t0``, level l the max (``use_max`` != 0; else the
+    min) over 2 x 2 tiles of level l - 1 (in its top-left (th >> l) x (tw >> l) corner, rounded up)."""
     th, tw = t0.shape
     pyr = np.empty((LEVELS, th, tw), dtype=np.float32)
     for a in range(th):  # (element by element: an array assigned to a slice makes numba compile its
@@ -149,10 +151,10 @@ def _pyramid(t0, use_max):
 
 @njit(cache=True, nogil=True)
 def _tiles_query(pyr, u0, u1, v0, v1, use_max):
-    """The greatest (or least) range over pixels [u0, u1] x [v0, v1] (clipped to the image),
-    bounded from the pyramid: over at most 9 x 9 tiles of the finest level whose tiles cover the
-    rectangle in 8 of them per axis (the tiles may reach beyond it: a looser, safe bound; 8 rather
-    than 2 culls a tenth more of the room's quarters for the reads)."""
+    """The greatest (``use_max`` != 0; else the least) range over pixels [u0, u1] x [v0, v1]
+    (clipped to the image), bounded from the pyramid: over at most 9 x 9 tiles of the finest level
+    whose tiles cover the rectangle in 8 of them per axis (the tiles may reach beyond it: a looser,
+    safe bound; 8 rather than 2 culls a tenth more of the room's quarters for the reads)."""
     _, th, tw = pyr.shape
     t0, t1 = max(np.int64(u0) // TILE, 0), min(np.int64(u1) // TILE, tw - 1)
     s0, s1 = max(np.int64(v0) // TILE, 0), min(np.int64(v1) // TILE, th - 1)
@@ -215,12 +217,12 @@ def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res
     fb = np.float32(band)
     lo = -1.0
     if inside:
-        rmin = _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, False)
+        rmin = _tiles_query(tmin, u0, u1 + 1.0, v0, v1 + 1.0, np.int64(0))
         if rmin - band > dist + rad:
             return FRONT, -1.0, np.inf
         lo = np.float64(np.float32(rmin) - fb)
     rim = 0.5 * res * max(fx, fy) / zn + 1.0
-    rmax = _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, True)
+    rmax = _tiles_query(tmax, u0 - rim, u1 + rim + 1.0, v0 - rim, v1 + rim + 1.0, np.int64(1))
     if rmax - band <= dist - rad:
         return CULLED, 0.0, 0.0
     return MIXED, lo, np.float64(np.float32(rmax) - fb)
