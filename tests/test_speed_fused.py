@@ -142,8 +142,8 @@ def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, ded
 
 @pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
 def test_fused_depth_kernel_pixels_at_max_range(encoding):
-    """The kernel skips the square root of the max-range cut below (1 - 1e-9) max_range and cuts
-    beyond max_range exactly as classify_rays does. max_range set to the exact length of chosen
+    """The kernel skips the max-range cut's square root on rows whose rays all stay below
+    (1 - 1e-9) max_range and cuts beyond max_range exactly as classify_rays does. max_range set to the exact length of chosen
     pixels' rays (as classify_rays computes it): those are not cut (still hits); set a hair
     (5e-10) short of it: they are; bit for bit the serial steps' rays, with and without dedupe."""
     rng = np.random.default_rng(11)
@@ -177,6 +177,31 @@ def test_fused_depth_kernel_pixels_at_max_range(encoding):
                 cut = length > max_range
                 reach = np.sqrt(((e2[cut] - T[:3, 3]) ** 2).sum(axis=1))
                 assert np.allclose(reach, max_range, rtol=1e-12, atol=0)
+
+
+def test_fused_depth_kernel_cuts_a_lone_far_pixel_of_a_row():
+    """The kernel does the max-range cut only on rows with a pixel that may reach beyond
+    max_range: a row whose one far pixel is its first, its middle or its last, among rows that
+    all stay within it, and an image all beyond it, give the serial steps' rays bit for bit,
+    exactly those pixels cut."""
+    rng = np.random.default_rng(5)
+    h, w = 24, 40
+    T = _pose(rng)
+    for far_at in ((7, 0), (11, w // 2), (23, w - 1), None):
+        raw = rng.uniform(1000, 2500, size=(h, w)).astype(np.uint16)  # 1 to 2.5 m: within 4 m
+        if far_at is None:
+            raw[:] = 6000  # every pixel beyond
+        else:
+            raw[far_at] = 6000
+        depth = raw.astype(np.float32) * np.float32(0.001)
+        pts = transform_points(T, depth_to_points(depth, 40.0, 41.0, 19.5, 11.5))
+        lmap = LayeredMap()
+        lmap.cfg.sensor.ground_tolerance = -1.0
+        e1, k1 = lmap.rays(T[:3, 3], pts, None, 4.0, None, False)
+        e2, k2 = lmap.depth_rays(raw, 40.0, 41.0, 19.5, 11.5, T, 4.0, None, False)
+        assert np.array_equal(e1, e2) and np.array_equal(k1, k2)
+        cut = (k2 == 1).reshape(h, w)  # RAY_CLEAR: cut at max_range
+        assert cut.all() if far_at is None else (cut.sum() == 1 and cut[far_at])
 
 
 def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
