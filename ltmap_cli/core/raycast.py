@@ -659,9 +659,10 @@ def _depth_rays_pass(
     third of the pass). It also marks the pixels whose key equals that of one of the three pixels
     before it or of the five nearest above it (near the row's ends: those that exist): those keys
     are in the dedupe set already, so the pixel adds nothing. The second pass walks the row's
-    other pixels in order (an index list, no branch per pixel) and looks them up: the set sees the same keys in the same order minus repeats, so the rays
-    kept (the first per key) are the same, in the same order. About 4x faster than one branchy
-    loop over the pixels (4.4 -> 1.2 ms for a 640x480 frame of the bench log).
+    other pixels in order (an index list, no branch per pixel) and looks them up: the set sees
+    the same keys in the same order minus repeats, so the rays kept (the first per key) are the
+    same, in the same order. About 4x faster than one branchy loop over the pixels (4.4 -> 1.2 ms
+    for a 640x480 frame of the bench log).
     """
     h, w = depth.shape
     n_max = cap // 2 if dedupe else h * w  # with dedupe, at most half the set's slots are kept
@@ -680,9 +681,9 @@ def _depth_rays_pass(
     mask = cap - 1
     m = 0
     mm = np.float32(0.001)
-    # the float rows in one block, at fixed offsets from each other: pass 1 without the cut ran at
-    # 0.59x to 0.69x of the time with the cut in its loop when they were, but 1.4x to 1.75x of it
-    # in some processes when each was allocated on its own (AMD Zen 3; the offsets malloc gave)
+    # the float rows in one block, at fixed offsets from each other. With the cut out of pass 1,
+    # the kernel took 0.59x to 0.69x of its time before in every process so; with each row
+    # allocated on its own, 1.4x to 1.75x in some processes (AMD Zen 3: the offsets malloc gave)
     row = w + ROW_PAD
     blk = np.empty(4 * row, dtype=np.float64)
     xr = blk[0:w]  # (u - cx) / fx, as depth_to_points computes it
