@@ -78,24 +78,45 @@ def test_background_compile_says_each_group_ended():
     assert len(seen) >= 2 and bc.procs == []  # (two ending within one poll are said together)
 
 
-def _literal(node):
-    """The value of a literal bool / int argument (numba types it as a literal when the call is
-    made from a kernel), else None."""
+def _literal(node, constants):
+    """The value of a literal bool / int argument, or of a module's int constant (``BLOCK``):
+    numba types either as a literal when the call is made from a kernel. Else None."""
     import ast
 
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
-        v = _literal(node.operand)
+        v = _literal(node.operand, constants)
         return None if v is None else -v
     if isinstance(node, ast.Constant) and isinstance(node.value, (bool, int)):
         return node.value
+    if isinstance(node, ast.Name):
+        return constants.get(node.id)
     return None
+
+
+def _module_constants(trees) -> dict:
+    """Module-level ``NAME = <int expression of literals and such names>`` of every module."""
+    import ast
+
+    constants: dict = {}
+    for _ in range(3):  # (constants made of other modules' constants: a few rounds)
+        for tree in trees:
+            for st in tree.body:
+                if isinstance(st, ast.Assign) and len(st.targets) == 1 and isinstance(st.targets[0], ast.Name):
+                    try:
+                        v = eval(compile(ast.Expression(st.value), "<const>", "eval"), {"__builtins__": {}},
+                                 dict(constants))  # fmt: skip
+                    except Exception:  # noqa: BLE001 - anything but a constant expression
+                        continue
+                    if isinstance(v, (bool, int)):
+                        constants[st.targets[0].id] = v
+    return constants
 
 
 def test_kernels_are_not_compiled_once_per_literal():
     """A kernel called from kernels with a literal argument (``f(x, True)``) is compiled for that
     literal: called elsewhere with another literal, or with a variable, it is compiled twice (each
     one a second or more of a first run's compiling: ``_pyramid``, ``_tiles_query``,
-    ``projective_blocks`` and ``_classify`` were). Every call site inside the package's kernels is
+    ``projective_blocks`` and ``_classify``, with ``BLOCK``, were). Every call site inside the package's kernels is
     read: an argument position gets one literal value, or none (a kernel inlined into its callers
     is not compiled on its own)."""
     import ast
@@ -107,6 +128,7 @@ def test_kernels_are_not_compiled_once_per_literal():
     def is_kernel(fn):
         return any("njit" in ast.unparse(d) for d in fn.decorator_list)
 
+    constants = _module_constants(trees.values())
     for tree in trees.values():  # (one inlined into its callers, ``inline="always"``, is no compiled function)
         kernels |= {n.name for n in ast.walk(tree) if isinstance(n, ast.FunctionDef) and is_kernel(n)
                     and not any("inline=" in ast.unparse(d) for d in n.decorator_list)}  # fmt: skip
@@ -117,7 +139,7 @@ def test_kernels_are_not_compiled_once_per_literal():
                     continue
                 seen = calls.setdefault(call.func.id, {})
                 for pos, arg in [*enumerate(call.args), *((k.arg, k.value) for k in call.keywords)]:
-                    v = _literal(arg)
+                    v = _literal(arg, constants)
                     seen.setdefault(pos, set()).add("variable" if v is None else repr(v))
     assert calls.get("_tiles_query") and calls.get("_pyramid")  # (the scan sees the call sites)
     twice = {f"{name}, argument {pos}: {sorted(kinds)}" for name, seen in calls.items() for pos, kinds in seen.items()
