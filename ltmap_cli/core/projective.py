@@ -270,12 +270,25 @@ def _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, 
     return cls, px0, py0, pz0
 
 
+@njit(cache=True, nogil=True)
+def _fill_scratch():
+    """``_block_fill``'s per-voxel rows for a quarter's 64 voxels, allocated once per call of the
+    block loop: (4, 64) float64 (squared distance, u, v, 1 / z) and (2, 64) int64 (pixel index,
+    the test's outcome)."""
+    return np.empty((4, 64)), np.empty((2, 64), dtype=np.int64)
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
-def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes, e, mask):
-    """The miss bits of a FRONT or MIXED block into ``mask`` (8,); True when it has any."""
+def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes, e, mask,
+                fs, ks):  # fmt: skip
+    """The miss bits of a FRONT or MIXED block into ``mask`` (8,); True when it has any. ``fs``, ``ks``:
+    ``_fill_scratch``."""
     ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2 = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
     full = ~np.uint64(0)
     Q = BLOCK // 2
+    vd2, vu, vv, viz = fs[0], fs[1], fs[2], fs[3]
+    vpix, vcode = ks[0], ks[1]
+    flat = reach.reshape(-1)
     if cls == FRONT:  # every voxel's centre is nearer than its pixel's range - band
         for t in range(8):
             mask[t] = full
@@ -303,53 +316,65 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
             continue
         qlo2 = qlo * qlo if qlo > 0.0 else -1.0  # (a miss needs reach > 0)
         qhi2 = qhi * qhi if qhi > 0.0 else -1.0
-        for a in range(sa, sa + Q):
-            for c in range(sc, sc + Q):
-                for ee in range(se, se + Q):
-                    x = px0 + a * ex0 + c * ey0 + ee * ez0  # the voxel's centre in the optical frame
-                    y = py0 + a * ex1 + c * ey1 + ee * ez1
-                    z = pz0 + a * ex2 + c * ey2 + ee * ez2
-                    d2 = x * x + y * y + z * z
-                    if z <= 0.0 or d2 >= qhi2:  # behind the camera, or beyond the quarter's bound
-                        continue
-                    free = d2 < qlo2  # nearer than the quarter's bound: a miss without a lookup
-                    if not free:  # its pixel
-                        iz = 1.0 / z
-                        uf = fx * x * iz + cx + 0.5
-                        vf = fy * y * iz + cy + 0.5
-                        su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
-                        rim = True  # test the pixels at the rim of its projection
-                        if uf >= 0.0 and uf < w and vf >= 0.0 and vf < h:
-                            ui, vi = np.int64(uf), np.int64(vf)
-                            r = np.float64(reach[vi, ui])
-                            free = r > 0.0 and r * r > d2
-                            if not free and su < TILE and sv < TILE:  # the rim's pixels lie in at most 2 x 2
-                                t0 = max(np.int64(uf - su), 0) // TILE  # tiles: any range far enough there?
-                                t1 = min(np.int64(uf + su), w - 1) // TILE
-                                s0 = max(np.int64(vf - sv), 0) // TILE
-                                s1 = min(np.int64(vf + sv), h - 1) // TILE
-                                r = max(max(tmax[0, s0, t0], tmax[0, s0, t1]), max(tmax[0, s1, t0], tmax[0, s1, t1]))
-                                r = np.float64(r) - band
-                                rim = r > 0.0 and r * r > d2
-                            elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
-                                r = np.float64(dil[(vi // TILE) >> 1, (ui // TILE) >> 1]) - band
-                                rim = r > 0.0 and r * r > d2
-                        else:  # outside the image: its rim too, unless within half a voxel of it
-                            rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
-                        if not free and rim:  # partly seen past an occluding edge?
-                            for q in range(8):
-                                du = su * (-1.0 if q == 0 or q == 3 or q == 5 else (1.0 if q == 2 or q == 4 or q == 7 else 0.0))
-                                dv = sv * (-1.0 if q < 3 else (1.0 if q > 4 else 0.0))
-                                ug, vg = uf + du, vf + dv
-                                if ug >= 0.0 and ug < w and vg >= 0.0 and vg < h:
-                                    r = np.float64(reach[np.int64(vg), np.int64(ug)])
-                                    if r > 0.0 and r * r > d2:
-                                        free = True
-                                        break
-                    if free:
-                        found = True
-                        off = (a << (2 * BLOCK_BITS)) | (c << BLOCK_BITS) | ee
-                        mask[off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+        # pass 1, no branches (vectorized): each voxel's centre, its pixel and that pixel's test
+        for t in range(64):
+            a, c, ee = sa + (t >> 4), sc + ((t >> 2) & 3), se + (t & 3)
+            x = px0 + a * ex0 + c * ey0 + ee * ez0  # the voxel's centre in the optical frame
+            y = py0 + a * ex1 + c * ey1 + ee * ez1
+            z = pz0 + a * ex2 + c * ey2 + ee * ez2
+            d2 = x * x + y * y + z * z
+            iz = 1.0 / z
+            uf = fx * x * iz + cx + 0.5
+            vf = fy * y * iz + cy + 0.5
+            inside = (uf >= 0.0) & (uf < w) & (vf >= 0.0) & (vf < h)
+            vd2[t] = d2
+            vu[t] = uf
+            vv[t] = vf
+            viz[t] = iz
+            vpix[t] = (np.int64(np.int32(vf)) * w + np.int32(uf)) if inside else -1  # (through int32: see depth_image_rays)
+            vcode[t] = 0 if (z <= 0.0) | (d2 >= qhi2) else (1 if d2 < qlo2 else 2)
+        for t in range(64):
+            code = vcode[t]
+            if code == 0:
+                continue
+            d2 = vd2[t]
+            free = code == 1
+            if not free:  # its pixel
+                uf, vf, iz = vu[t], vv[t], viz[t]
+                su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
+                rim = True  # test the pixels at the rim of its projection
+                pix = vpix[t]
+                if pix >= 0:
+                    ui, vi = np.int64(uf), np.int64(vf)
+                    r = np.float64(flat[pix])
+                    free = r > 0.0 and r * r > d2
+                    if not free and su < TILE and sv < TILE:  # the rim's pixels lie in at most 2 x 2
+                        t0 = max(np.int64(uf - su), 0) // TILE  # tiles: any range far enough there?
+                        t1 = min(np.int64(uf + su), w - 1) // TILE
+                        s0 = max(np.int64(vf - sv), 0) // TILE
+                        s1 = min(np.int64(vf + sv), h - 1) // TILE
+                        r = max(max(tmax[0, s0, t0], tmax[0, s0, t1]), max(tmax[0, s1, t0], tmax[0, s1, t1]))
+                        r = np.float64(r) - band
+                        rim = r > 0.0 and r * r > d2
+                    elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
+                        r = np.float64(dil[(vi // TILE) >> 1, (ui // TILE) >> 1]) - band
+                        rim = r > 0.0 and r * r > d2
+                else:  # outside the image: its rim too, unless within half a voxel of it
+                    rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
+                if not free and rim:  # partly seen past an occluding edge?
+                    for q in range(8):
+                        du = su * (-1.0 if q == 0 or q == 3 or q == 5 else (1.0 if q == 2 or q == 4 or q == 7 else 0.0))
+                        dv = sv * (-1.0 if q < 3 else (1.0 if q > 4 else 0.0))
+                        ug, vg = uf + du, vf + dv
+                        if ug >= 0.0 and ug < w and vg >= 0.0 and vg < h:
+                            r = np.float64(reach[np.int64(vg), np.int64(ug)])
+                            if r > 0.0 and r * r > d2:
+                                free = True
+                                break
+            if free:
+                found = True
+                off = ((sa + (t >> 4)) << (2 * BLOCK_BITS)) | ((sc + ((t >> 2) & 3)) << BLOCK_BITS) | (se + (t & 3))
+                mask[off >> 6] |= np.uint64(1) << np.uint64(off & 63)
     return found
 
 
@@ -384,6 +409,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     far, planes, e = _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
     if far <= 0.0:
         return 0, n_skipped, -1
+    fs, ks = _fill_scratch()
     n = 0
     cap = keys.shape[0]
     nq = quiet_keys.shape[0]
@@ -406,7 +432,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                 continue
         keys[n] = key
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
-                       e, masks[n]):  # fmt: skip
+                       e, masks[n], fs, ks):  # fmt: skip
             n += 1
     return n, n_skipped, -1
 
@@ -421,6 +447,7 @@ def projective_fill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band
     bj1, bk1 = box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
     nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
     far, planes, e = _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
+    fs, ks = _fill_scratch()
     n = 0
     for t in range(blocks.shape[0]):
         b = blocks[t]
@@ -433,7 +460,7 @@ def projective_fill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band
             continue
         keys[n] = pack_block(bi, bj, bk)
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
-                       e, masks[n]):  # fmt: skip
+                       e, masks[n], fs, ks):  # fmt: skip
             blocks[n] = b
             n += 1
     return n
