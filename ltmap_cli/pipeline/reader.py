@@ -4,11 +4,11 @@
 
 from __future__ import annotations
 
-import contextlib
-import queue
 import threading
 import time
-from collections import Counter
+from collections import Counter, deque
+
+import numpy as np
 
 
 def open_reader(stream, stage: Counter, threads: bool):
@@ -43,37 +43,70 @@ class TimedIter:
             close()
 
 
+def payload_bytes(item) -> int:
+    """The bytes a stream item holds in arrays: its frame's (a ``(topic, log ns, frame)`` tuple's,
+    or the item's own) numpy fields: a depth image's pixels, a cloud's points, a scan's ranges."""
+    frame = item[2] if isinstance(item, tuple) and len(item) == 3 else item
+    fields = getattr(frame, "__dict__", None)
+    if not fields:
+        return 0
+    return sum(v.nbytes for v in fields.values() if isinstance(v, np.ndarray))
+
+
 class ReaderThread:
     """Read and decode a frame stream in a background thread, handing batches to the consumer
-    through a bounded queue (log order kept; an exception of the stream is re-raised where the
-    consumer reaches it). ``stage["read"]``: time the consumer waited; ``stage["read_thread"]``:
-    the reader's busy time."""
+    (log order kept; an exception of the stream is re-raised where the consumer reaches it).
+    ``stage["read"]``: time the consumer waited; ``stage["read_thread"]``: the reader's busy time.
+
+    What waits between the two is bounded by count (``DEPTH`` batches of ``BATCH`` items) and by
+    bytes (``MAX_BYTES`` of frames' arrays, ``payload_bytes``; a batch is handed over once it holds
+    ``BATCH_BYTES``): a count alone let large frames pile up (47 images of 1280x720 queued, 87 MB;
+    of a 4K float image or a 64-beam lidar's clouds, gigabytes). One batch is always let through,
+    however large, so a frame bigger than the budget still passes."""
 
     BATCH = 32
     DEPTH = 8  # batches queued at most
+    MAX_BYTES = 48 << 20  # frames' arrays queued at most (about 80 images of 640x480 16UC1)
+    BATCH_BYTES = 6 << 20  # a batch holding this much is handed over before it has BATCH items
 
     def __init__(self, stream, stage: Counter):
         self.stream = stream
         self.stage = stage
         self.cpu_s = 0.0  # the reader thread's CPU time, once it has ended
-        self.q: queue.Queue = queue.Queue(maxsize=self.DEPTH)
+        self.q: deque = deque()  # (kind, payload, bytes)
+        self.queued_bytes = 0
+        self.peak_bytes = 0  # the most bytes ever queued (tests, benches)
+        self.cond = threading.Condition()
         self.stop = threading.Event()
         self.thread = threading.Thread(target=self._run, name="ltmap-reader", daemon=True)
         self.thread.start()
 
-    def _put(self, item) -> bool:
-        while not self.stop.is_set():
-            try:
-                self.q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
+    def _put(self, item, nbytes: int = 0) -> bool:
+        with self.cond:
+            while not self.stop.is_set():
+                if not self.q or (len(self.q) < self.DEPTH and self.queued_bytes + nbytes <= self.MAX_BYTES):
+                    self.q.append((*item, nbytes))
+                    self.queued_bytes += nbytes
+                    self.peak_bytes = max(self.peak_bytes, self.queued_bytes)
+                    self.cond.notify_all()
+                    return True
+                self.cond.wait(0.1)
         return False
+
+    def _get(self):
+        with self.cond:
+            while not self.q:
+                self.cond.wait()
+            kind, payload, nbytes = self.q.popleft()
+            self.queued_bytes -= nbytes
+            self.cond.notify_all()
+        return kind, payload
 
     def _run(self) -> None:
         busy = 0.0
         c0 = time.thread_time()
         batch: list = []
+        nbytes = 0
         try:
             it = iter(self.stream)
             while not self.stop.is_set():
@@ -85,16 +118,17 @@ class ReaderThread:
                     break
                 busy += time.perf_counter() - t0
                 batch.append(x)
-                if len(batch) >= self.BATCH:
-                    if not self._put(("items", batch)):
+                nbytes += payload_bytes(x)
+                if len(batch) >= self.BATCH or nbytes >= self.BATCH_BYTES:
+                    if not self._put(("items", batch), nbytes):
                         return
-                    batch = []
+                    batch, nbytes = [], 0
             if batch:
-                self._put(("items", batch))
+                self._put(("items", batch), nbytes)
             self._put(("end", None))
         except BaseException as err:  # noqa: BLE001 - handed to the consumer
             if batch:
-                self._put(("items", batch))
+                self._put(("items", batch), nbytes)
             self._put(("error", err))
         finally:
             self.stage["read_thread"] += busy
@@ -106,7 +140,7 @@ class ReaderThread:
     def __iter__(self):
         while True:
             t0 = time.perf_counter()
-            kind, payload = self.q.get()
+            kind, payload = self._get()
             self.stage["read"] += time.perf_counter() - t0
             if kind == "items":
                 yield from payload
@@ -117,7 +151,6 @@ class ReaderThread:
 
     def close(self) -> None:
         self.stop.set()
-        while self.thread.is_alive():
-            with contextlib.suppress(queue.Empty):
-                self.q.get(timeout=0.05)
+        with self.cond:
+            self.cond.notify_all()
         self.thread.join()
