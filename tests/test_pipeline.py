@@ -143,6 +143,27 @@ def test_the_executor_hands_results_back_in_submission_order(threads):
     assert got == [(i, i * i) for i in range(10)]
 
 
+def test_the_executor_keeps_large_frames_in_flight_by_bytes_not_only_by_count():
+    """Frames of 30 MB under a 64 MB budget with 3 workers: at most 3 in flight (one per worker,
+    whatever their size), not the 12 the count allows; small ones up to the count; results in order."""
+    ex = OrderedExecutor(True, workers=3, in_flight=12, max_bytes=64 << 20)
+    got, most = [], 0
+    try:
+        for i in range(20):
+            big = i < 10
+            ex.submit(i, lambda i: time.sleep(0.001) or i, i, nbytes=(30 << 20) if big else 1000)
+            got += [p for p, _, _ in ex.ready()]
+            most = max(most, len(ex.jobs)) if big else most
+            assert ex.bytes <= max(64 << 20, 3 * (30 << 20))
+            if big:
+                assert len(ex.jobs) <= 3
+        assert len(ex.jobs) > 3  # the small ones: by count
+        got += [p for p, _, _ in ex.drain()]
+    finally:
+        ex.close()
+    assert got == list(range(20)) and most == 3 and ex.bytes == 0
+
+
 def test_io_never_imports_core_and_pipeline_imports_no_cli():
     code = (
         "import sys, pkgutil, importlib, ltmap_cli.io\n"

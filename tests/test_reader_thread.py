@@ -16,7 +16,6 @@ from ltmap_cli.io.frames import CameraIntrinsics, CloudFrame, DepthFrame, ScanFr
 from ltmap_cli.pipeline.reader import ReaderThread, payload_bytes
 
 
-
 def _depth(i: int, mb: float) -> tuple:
     n = int(mb * (1 << 20)) // 4
     k = CameraIntrinsics(n, 1, 100.0, 100.0, n / 2, 0.0)

@@ -13,6 +13,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 IN_FLIGHT = 8  # frames the workers may compute ahead of integration (at least; 4 per worker)
+IN_FLIGHT_BYTES = 64 << 20  # and no more frames' arrays than this, beyond one frame per worker
 AUTO_WORKERS_MAX = 8  # replay.workers 0 takes one per usable core up to this: beyond, the map thread
 # bounds the speed (bench_long_rays: a room's map thread allows about 12x, a hall's 9x), and each
 # frame in flight holds its image and voxels (about 2 MB for 640x480 depth)
@@ -47,21 +48,26 @@ def usable_cores(cgroup_root: Path = CGROUP_ROOT) -> int:
 
 
 class OrderedExecutor:
-    """``submit(payload, fn, *args)``, then ``ready()`` yields ``(payload, result, wait_s)`` in
-    submission order: all jobs beyond ``in_flight`` (default: 4 per worker, at least
-    ``IN_FLIGHT``), and finished ones at the head. Without
-    threads, ``fn`` runs at submission and ``ready()`` yields it at once (``wait_s`` None)."""
+    """``submit(payload, fn, *args, nbytes=N)``, then ``ready()`` yields ``(payload, result,
+    wait_s)`` in submission order: all jobs beyond ``in_flight`` (default: 4 per worker, at least
+    ``IN_FLIGHT``) or beyond ``max_bytes`` of submitted frames (``nbytes`` each; one job per
+    worker is always let run: large frames, a 4K image or a lidar's cloud, do not wait 32 at a
+    time on a many-core machine), and finished ones at the head. Without threads, ``fn`` runs at
+    submission and ``ready()`` yields it at once (``wait_s`` None)."""
 
-    def __init__(self, threads: bool, workers: int = 0, in_flight: int = 0):
+    def __init__(self, threads: bool, workers: int = 0, in_flight: int = 0, max_bytes: int = IN_FLIGHT_BYTES):
         n = workers if workers > 0 else min(usable_cores(), AUTO_WORKERS_MAX)
         self.workers = n if threads else 0
         self.pool = ThreadPoolExecutor(n, thread_name_prefix="ltmap-rays") if threads else None
         self.keep = (in_flight or max(IN_FLIGHT, 4 * n)) if threads else 0
-        self.jobs: deque = deque()
+        self.max_bytes = max_bytes
+        self.jobs: deque = deque()  # (payload, job, bytes)
+        self.bytes = 0  # of the jobs in flight
 
-    def submit(self, payload, fn: Callable, *args) -> None:
+    def submit(self, payload, fn: Callable, *args, nbytes: int = 0) -> None:
         job = self.pool.submit(fn, *args) if self.pool is not None else fn(*args)
-        self.jobs.append((payload, job))
+        self.jobs.append((payload, job, nbytes))
+        self.bytes += nbytes
 
     def ready(self) -> Iterator[tuple[object, object, float | None]]:
         return self._take(self.keep)
@@ -71,8 +77,10 @@ class OrderedExecutor:
 
     def _take(self, keep: int):
         jobs = self.jobs
-        while jobs and (len(jobs) > keep or (keep and jobs[0][1].done())):
-            payload, job = jobs.popleft()
+        while jobs and (len(jobs) > keep or (keep and jobs[0][1].done())
+                        or (keep and self.bytes > self.max_bytes and len(jobs) > self.workers)):  # fmt: skip
+            payload, job, nbytes = jobs.popleft()
+            self.bytes -= nbytes
             if isinstance(job, Future):
                 t0 = time.perf_counter()
                 result = job.result()

@@ -41,7 +41,7 @@ from .clock import Ticker
 from .executor import OrderedExecutor
 from .localize import localize_logs
 from .rays import CastFrame, FrameCaster
-from .reader import open_reader
+from .reader import open_reader, payload_bytes
 from .report import Report
 from .scheduler import Placed, Scheduler, Skipped, TfSeen
 from .sinks import (
@@ -494,7 +494,7 @@ class Replay:
             T = event.T
             if isinstance(event.frame, (DepthFrame, RawDepthFrame)):
                 T = self._depth_axes(event.topic, event.frame.frame_id, T)
-            self.executor.submit(event, self.caster.cast, event.frame, T, event.robot)
+            self.executor.submit(event, self.caster.cast, event.frame, T, event.robot, nbytes=payload_bytes(event.frame))
             for job in self.executor.ready():
                 self._integrate(*job)
 
