@@ -57,11 +57,16 @@ def _check_nothing_left(lmap: LayeredMap) -> int:
     return int((d.channel("st") > 0).sum())
 
 
-def test_queue_forgets_what_the_full_scan_forgets():
+def _forget_run(queue_slots: int = 0) -> tuple[int, LayeredMap]:
+    """60 ticks of random frames with a spot seen 3 ticks in 7 (ST forgotten 5 ticks after),
+    each tick checked against the full scan; (voxels forgotten, the map). ``queue_slots``: the
+    forget queue starts that small."""
     rng = np.random.default_rng(5)
     cfg = Config().map
     cfg.layers.st_forget_s = 1.0  # 5 ticks
     lmap = LayeredMap(cfg)
+    if queue_slots:
+        lmap._fq_vid, lmap._fq_due = lmap._fq_vid[:queue_slots].copy(), lmap._fq_due[:queue_slots].copy()
     forgotten = 0
     for tick in range(60):
         for _ in range(2):
@@ -73,7 +78,23 @@ def test_queue_forgets_what_the_full_scan_forgets():
         r = lmap.end_tick()
         forgotten += r.st_forgotten
         _check_nothing_left(lmap)
+    return forgotten, lmap
+
+
+def test_queue_forgets_what_the_full_scan_forgets():
+    forgotten, _ = _forget_run()
     assert forgotten > 0
+
+
+def test_a_full_forget_queue_grows_within_a_tick():
+    """A queue of 4 slots: the tick kernel appends a tick's obstacles itself, stops when the queue
+    is full and goes on after it grew; the same voxels are forgotten, ST and LT the same."""
+    n_default, a = _forget_run()
+    n_small, b = _forget_run(queue_slots=4)
+    assert len(b._fq_vid) > 4
+    assert n_small == n_default
+    for ch in ("st", "lt", "last_obs", "obst_since"):
+        assert np.array_equal(a.D.channel(ch), b.D.channel(ch)), ch
 
 
 def test_queue_survives_state_reload():
