@@ -99,6 +99,26 @@ def test_release_waits_in_header_time_and_in_record_time():
                 assert log_ns >= e.frame.stamp_ns + YEAR_NS + NS // 2 - NS // 20
 
 
+def test_the_backlog_is_bounded_in_bytes_too():
+    """Large frames (10 MB scans here) whose tf never comes: no more than 35 MB of them are held,
+    the earliest stamp released first; small ones up to the count."""
+    from ltmap_cli.pipeline.scheduler import FrameHold
+
+    hold = FrameHold(NS, max_pending=100, max_bytes=35 << 20)
+    out, most = [], 0
+    for i in range(12):
+        hold.push(100 - i, i, 100 - i, nbytes=10 << 20)
+        out += list(hold.release(i))  # (no record time passes: only the bounds release)
+        most = max(most, len(hold))
+        assert hold.bytes <= 35 << 20
+    assert most == 3
+    assert out == [97, 96, 95, 94, 93, 92, 91, 90, 89]
+    assert list(hold.flush()) == [98, 99, 100] and hold.bytes == 0
+    for i in range(50):
+        hold.push(i, 0, i, nbytes=1000)
+        assert list(hold.release(0)) == []
+
+
 def test_frames_are_released_in_stamp_order_and_the_backlog_is_bounded():
     tf = TfBuffer()
     tf.add(TfSample(0, "odom", "laser", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0), static=True))

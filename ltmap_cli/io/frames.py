@@ -91,3 +91,13 @@ class ReadStats:
 
     messages_per_topic: dict[str, int] = field(default_factory=dict)
     stopped_at: str | None = None
+
+
+def frame_nbytes(frame) -> int:
+    """The bytes a frame holds in arrays (its numpy fields: an image's pixels, a cloud's points, a
+    scan's ranges); 0 for anything else. What the pipeline's buffers count against their bounds."""
+    fields = getattr(frame, "__dict__", None)
+    if not fields:
+        return 0
+    return sum(v.nbytes for v in fields.values() if isinstance(v, np.ndarray))
+

@@ -8,7 +8,7 @@ import threading
 import time
 from collections import Counter, deque
 
-import numpy as np
+from ..io.frames import frame_nbytes
 
 
 def open_reader(stream, stage: Counter, threads: bool):
@@ -45,12 +45,8 @@ class TimedIter:
 
 def payload_bytes(item) -> int:
     """The bytes a stream item holds in arrays: its frame's (a ``(topic, log ns, frame)`` tuple's,
-    or the item's own) numpy fields: a depth image's pixels, a cloud's points, a scan's ranges."""
-    frame = item[2] if isinstance(item, tuple) and len(item) == 3 else item
-    fields = getattr(frame, "__dict__", None)
-    if not fields:
-        return 0
-    return sum(v.nbytes for v in fields.values() if isinstance(v, np.ndarray))
+    or the item's own), ``io.frames.frame_nbytes``."""
+    return frame_nbytes(item[2] if isinstance(item, tuple) and len(item) == 3 else item)
 
 
 class ReaderThread:

@@ -8,8 +8,9 @@ with its reason, never a guess.
 The wait for tf is measured in header time (SPEC 4: header stamps may differ from record times
 by a constant: a bag re-recorded from playback, sim time, an unsynced clock): a frame is released
 once tf has a sample stamped ``wait`` after it, or once it has been held ``wait`` of record time
-(tf that stopped, or static tf only), or when too many frames are held. With header stamps equal
-to record times, both conditions are the same. Knows nothing of the map: testable on its own.
+(tf that stopped, or static tf only), or when too many frames, or too many bytes of them, are
+held. With header stamps equal to record times, both conditions are the same. Knows nothing of
+the map: testable on its own.
 """
 
 from __future__ import annotations
@@ -22,10 +23,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import TransformError
-from ..io.frames import OdometrySample, TfSample
+from ..io.frames import OdometrySample, TfSample, frame_nbytes
 from ..io.transforms import TfBuffer, choose_base_frame, norm
 
 MAX_PENDING = 200  # sensor frames held for tf at most (guards logs whose stamps run ahead)
+MAX_PENDING_BYTES = 256 << 20  # and their arrays at most (200 large frames would be gigabytes)
 
 
 @dataclass
@@ -59,11 +61,14 @@ class Skipped:
 class FrameHold:
     """Sensor frames held for tf, released in header-stamp order (the rule of the module doc):
     ``push`` each frame, then ``release(log_ns)`` yields those whose tf has had time to
-    arrive; ``flush`` the rest at the end."""
+    arrive, and the earliest stamped while more than ``max_pending`` frames or ``max_bytes`` of
+    their arrays (``nbytes`` at ``push``) are held; ``flush`` the rest at the end."""
 
-    def __init__(self, wait_ns: int, max_pending: int = MAX_PENDING):
+    def __init__(self, wait_ns: int, max_pending: int = MAX_PENDING, max_bytes: int = MAX_PENDING_BYTES):
         self.wait_ns = wait_ns
         self.max_pending = max_pending
+        self.max_bytes = max_bytes
+        self.bytes = 0  # of the frames held
         self.heap: list = []
         self._seq = 0
         self.tf_high_ns: int | None = None  # newest header stamp of a dynamic tf / odometry sample
@@ -84,9 +89,15 @@ class FrameHold:
     def __len__(self) -> int:
         return len(self.heap)
 
-    def push(self, stamp_ns: int, log_ns: int, payload) -> None:
-        heapq.heappush(self.heap, (stamp_ns, self._seq, log_ns, payload))
+    def push(self, stamp_ns: int, log_ns: int, payload, nbytes: int = 0) -> None:
+        heapq.heappush(self.heap, (stamp_ns, self._seq, log_ns, payload, nbytes))
         self._seq += 1
+        self.bytes += nbytes
+
+    def _pop(self):
+        entry = heapq.heappop(self.heap)
+        self.bytes -= entry[4]
+        return entry[3]
 
     def release(self, log_ns: int) -> Iterator:
         heap, wait, tf_high_ns = self.heap, self.wait_ns, self.tf_high_ns
@@ -94,13 +105,14 @@ class FrameHold:
             (tf_high_ns is not None and heap[0][0] <= tf_high_ns - wait)
             or heap[0][2] <= log_ns - wait
             or len(heap) > self.max_pending
+            or self.bytes > self.max_bytes
         ):
-            yield heapq.heappop(heap)[3]
+            yield self._pop()
 
     def flush(self, before_ns: int | None = None) -> Iterator:
         """The frames held (those stamped before ``before_ns``, when given), in stamp order."""
         while self.heap and (before_ns is None or self.heap[0][0] < before_ns):
-            yield heapq.heappop(self.heap)[3]
+            yield self._pop()
 
     def payloads(self) -> Iterator:
         return (entry[3] for entry in self.heap)
@@ -112,7 +124,7 @@ class Scheduler:
     the first sensor frame placed (``fixed_frame_request``: the user's, else map, else odom)."""
 
     def __init__(self, tf: TfBuffer, *, wait_ns: int, fixed_frame_request: str = "", base_frame: str = "base_link",
-                 timer=None, max_pending: int = MAX_PENDING):  # fmt: skip
+                 timer=None, max_pending: int = MAX_PENDING, max_bytes: int = MAX_PENDING_BYTES):  # fmt: skip
         self.tf = tf
         self.request = fixed_frame_request
         self.base_request = base_frame
@@ -120,7 +132,7 @@ class Scheduler:
         self.fixed_frame: str | None = None
         self.base_frame: str | None = None
         self.fixed_later: tuple | None = None  # (--fixed-frame, sensor frames) when tf lacked it at the start
-        self.hold = FrameHold(wait_ns, max_pending)
+        self.hold = FrameHold(wait_ns, max_pending, max_bytes)
 
     def feed(self, topic: str, log_ns: int, item) -> Iterator[TfSeen | Placed | Skipped]:
         if isinstance(item, (TfSample, OdometrySample)):
@@ -132,7 +144,7 @@ class Scheduler:
             self._time("tf", t0)
             yield TfSeen(item)
         else:
-            self.hold.push(item.stamp_ns, log_ns, (topic, item, log_ns))
+            self.hold.push(item.stamp_ns, log_ns, (topic, item, log_ns), frame_nbytes(item))
         for t, frame, at in self.hold.release(log_ns):
             yield self._place(t, frame, at)
 
