@@ -279,6 +279,27 @@ def test_projection_listed_in_chunks_is_the_same(monkeypatch):
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
 
 
+def _encoded(depth_mm: np.ndarray, float32: bool) -> np.ndarray:
+    """Millimetres (0: no return) as a 16UC1 image, or as 32FC1 metres with NaN holes."""
+    if not float32:
+        return depth_mm.astype(np.uint16)
+    img = (depth_mm / 1000.0).astype(np.float32)
+    img[img == 0] = np.nan
+    return img
+
+
+def _random_pose(rng: np.random.Generator, max_pitch: float) -> np.ndarray:
+    """The camera looking level-ish (pitch within +-max_pitch rad) in a random direction from a
+    random point near (0, 0, 1.5): optical frame -> fixed frame."""
+    yaw, pitch = rng.uniform(-np.pi, np.pi), rng.uniform(-max_pitch, max_pitch)
+    cy_, sy_, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+    R_world = np.array([[cy_, -sy_, 0], [sy_, cy_, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    pose = np.eye(4)
+    pose[:3, :3] = R_world @ POSE[:3, :3]
+    pose[:3, 3] = rng.uniform(-2, 2, 3) + [0, 0, 1.5]
+    return pose
+
+
 @pytest.mark.parametrize("seed", [0, 1, *(pytest.param(s, marks=pytest.mark.slow) for s in range(2, 6))])  # (4 in the slow tier)
 def test_random_depth_images_hit_the_same_voxels(seed):
     """Seeded random depth images (a wall, boxes at random depths, holes, pixels beyond max range,
@@ -291,17 +312,8 @@ def test_random_depth_images_hit_the_same_voxels(seed):
         v0, u0 = rng.integers(0, H - 10), rng.integers(0, W - 10)
         depth[v0:v0 + rng.integers(5, 60), u0:u0 + rng.integers(5, 80)] = rng.uniform(300, 9500)
     depth[rng.random((H, W)) < 0.05] = 0  # holes
-    if seed % 2:
-        img = (depth / 1000.0).astype(np.float32)
-        img[img == 0] = np.nan
-    else:
-        img = depth.astype(np.uint16)
-    yaw, pitch = rng.uniform(-np.pi, np.pi), rng.uniform(-0.4, 0.4)
-    cy_, sy_, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
-    R_world = np.array([[cy_, -sy_, 0], [sy_, cy_, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    pose = np.eye(4)
-    pose[:3, :3] = R_world @ POSE[:3, :3]
-    pose[:3, 3] = rng.uniform(-2, 2, 3) + [0, 0, 1.5]
+    img = _encoded(depth, float32=bool(seed % 2))
+    pose = _random_pose(rng, 0.4)
     maps = {}
     for mode in ("exact", "projective"):
         m = _map(mode)
@@ -443,17 +455,8 @@ def test_projection_is_the_per_voxel_rule(seed):
     depth[rng.random((h, w)) < 0.05] = 0  # holes
     depth[rng.random((h, w)) < 0.01] = 9000  # beyond max range: clear up to it
     max_range = 4.0
-    if seed % 2:
-        img = (depth / 1000.0).astype(np.float32)
-        img[img == 0] = np.nan
-    else:
-        img = depth.astype(np.uint16)
-    yaw, pitch = rng.uniform(-np.pi, np.pi), rng.uniform(-0.5, 0.5)
-    cy_, sy_, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
-    R_world = np.array([[cy_, -sy_, 0], [sy_, cy_, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    pose = np.eye(4)
-    pose[:3, :3] = R_world @ POSE[:3, :3]
-    pose[:3, 3] = rng.uniform(-2, 2, 3) + [0, 0, 1.5]
+    img = _encoded(depth, float32=bool(seed % 2))
+    pose = _random_pose(rng, 0.5)
     cx, cy = (w - 1) / 2 + rng.uniform(-3, 3), (h - 1) / 2 + rng.uniform(-3, 3)
     m = _map()
     ends, _ = m.depth_rays(img, f, f, cx, cy, pose, max_range)
