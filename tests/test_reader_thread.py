@@ -1,7 +1,7 @@
 """The reader thread (``pipeline.reader.ReaderThread``): frames decoded ahead of the mapper, in
 log order, with what waits between the two bounded in count and in bytes. Counted by items alone,
 large frames piled up: 47 images of 1280x720 (87 MB) on the room720 bench log, and for a 4K float
-camera or a lidar's clouds it would be gigabytes."""
+camera it would be gigabytes."""
 
 from __future__ import annotations
 

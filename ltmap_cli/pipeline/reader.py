@@ -57,8 +57,8 @@ class ReaderThread:
     What waits between the two is bounded by count (``DEPTH`` batches of ``BATCH`` items) and by
     bytes (``MAX_BYTES`` of frames' arrays, ``payload_bytes``; a batch is handed over once it holds
     ``BATCH_BYTES``): a count alone let large frames pile up (47 images of 1280x720 queued, 87 MB;
-    of a 4K float image or a 64-beam lidar's clouds, gigabytes). One batch is always let through,
-    however large, so a frame bigger than the budget still passes."""
+    256 images of a 4K float camera, 8 GB). One batch is always let through, however large, so a
+    frame bigger than the budget still passes."""
 
     BATCH = 32
     DEPTH = 8  # batches queued at most
