@@ -312,8 +312,8 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
     Returns TICK_DONE, or the index to resume from when the D pool, an event buffer or the forget
     queue ``fq`` (``ForgetQueue``) is full (nothing of that item was changed). A voxel seen as an
     obstacle is appended to the forget queue, due at ``s.forget_due`` (this was a second pass
-    over the tick buffer, a D lookup per block: 7 % of the map thread's CPU on the room log). ``counters``: C_OBSTACLES, C_SEEN_FREE, C_LT_ENTERED,
-    C_LT_LEFT, C_HELD. A voxel O says occupied is an obstacle only when a frame of this tick hit
+    over the tick buffer, a D lookup per block: 7 % of the map thread's CPU on the room log).
+    ``counters``: C_OBSTACLES, C_SEEN_FREE, C_LT_ENTERED, C_LT_LEFT, C_HELD. A voxel O says occupied is an obstacle only when a frame of this tick hit
     it (``hit_mark``, cleared here); observed only as a miss it is *held*: ST and LT keep their
     values (an object just removed: O needs several misses to turn free).
     For voxels inside the z band [k_lo, k_hi] (what P shows), LT crossing ``occ_thr`` is recorded
@@ -331,7 +331,8 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
     # block db have the same coordinates, so db depends on b alone, until this kernel adds it
     last_b, last_db = np.int64(-1), np.int64(-1)
     for t in range(start, n_tb):
-        if ev.tr_meta[0] >= ev.tr.shape[0] or ev.hist_meta[0] >= ev.hist_i.shape[0] or fq.meta[1] >= fq.vid.shape[0]:
+        if (ev.tr_meta[0] >= ev.tr.shape[0] or ev.hist_meta[0] >= ev.hist_i.shape[0]
+                or fq.meta[1] >= fq.vid.shape[0]):  # fmt: skip
             return t
         b = tb_block[t]
         off = tb_off[t]

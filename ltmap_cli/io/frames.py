@@ -100,4 +100,3 @@ def frame_nbytes(frame) -> int:
     if not fields:
         return 0
     return sum(v.nbytes for v in fields.values() if isinstance(v, np.ndarray))
-

@@ -30,7 +30,7 @@ from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError, human
 from ..io.atomic import write_text_atomic
 from ..io.decode import RawDepthFrame
-from ..io.frames import DepthFrame, OdometrySample, TfSample
+from ..io.frames import DepthFrame, OdometrySample, TfSample, frame_nbytes
 from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
@@ -41,7 +41,7 @@ from .clock import Ticker
 from .executor import OrderedExecutor
 from .localize import localize_logs
 from .rays import CastFrame, FrameCaster
-from .reader import open_reader, payload_bytes
+from .reader import open_reader
 from .report import Report
 from .scheduler import Placed, Scheduler, Skipped, TfSeen
 from .sinks import (
@@ -494,7 +494,8 @@ class Replay:
             T = event.T
             if isinstance(event.frame, (DepthFrame, RawDepthFrame)):
                 T = self._depth_axes(event.topic, event.frame.frame_id, T)
-            self.executor.submit(event, self.caster.cast, event.frame, T, event.robot, nbytes=payload_bytes(event.frame))
+            self.executor.submit(event, self.caster.cast, event.frame, T, event.robot,
+                                 nbytes=frame_nbytes(event.frame))  # fmt: skip
             for job in self.executor.ready():
                 self._integrate(*job)
 
