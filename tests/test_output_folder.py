@@ -505,14 +505,18 @@ def test_kill_9_at_20_moments_leaves_the_old_or_the_new_complete_run(tmp_path):
 @pytest.mark.slow
 def test_two_concurrent_replays_on_one_folder(tmp_path):
     out_path = tmp_path / "out"
-    first = subprocess.Popen(ltmap(*REPLAY, "-o", out_path), env=env(), stdout=subprocess.PIPE,
+    marker = tmp_path / "locked"
+    # the first holds the lock, paused just after taking it until the marker goes: however fast it
+    # replays, the second starts while the first holds the lock
+    first = subprocess.Popen(ltmap(*REPLAY, "-o", out_path), env=env(f"locked:{marker}"), stdout=subprocess.PIPE,
                              stderr=subprocess.PIPE, text=True)  # fmt: skip
     t_end = time.monotonic() + 60
-    while staging_of(out_path) is None and first.poll() is None and time.monotonic() < t_end:
-        time.sleep(0.001)  # the first holds the lock from here to its end
-    assert first.poll() is None, first.communicate()
+    while not marker.exists() and first.poll() is None and time.monotonic() < t_end:
+        time.sleep(0.001)
+    assert first.poll() is None and marker.exists(), first.communicate()
     second = subprocess.run(ltmap("replay", LOG_OLD, "-o", out_path, "--no-plots", "-q"), env=env(),
                             capture_output=True, text=True)  # fmt: skip
+    marker.unlink()  # the first goes on
     _, err = first.communicate(timeout=120)
     assert first.returncode == 0, err
     assert second.returncode == 2 and second.stdout == ""

@@ -28,8 +28,9 @@ A run that starts removes, under the lock, every staging and aside folder a kill
 unless ``force``: ltmap's folders hold the manifest, or, written before the manifest existed,
 the files an older ltmap wrote last (``LEGACY_MARKERS``).
 
-Tests kill a run at named points (``_pause``: ``locked``, ``commit``, ``manifest``, ``exchanged``,
-``aside``, ``renamed``) with ``LTMAP_TEST_PAUSE=POINT:FILE``; nothing else reads that variable.
+Tests hold a run at named points (``_pause``: ``locked``, ``commit``, ``manifest``, ``exchanged``,
+``aside``, ``renamed``) with ``LTMAP_TEST_PAUSE=POINT:FILE``, to kill it there or to let it go on;
+nothing else reads that variable.
 """
 
 from __future__ import annotations
@@ -508,9 +509,13 @@ class _Lock:
 
 
 def _pause(point: str) -> None:
-    """Tests only (``tests/test_output_folder.py`` kills a run here): with ``LTMAP_TEST_PAUSE`` =
-    ``POINT:FILE``, at ``POINT`` create FILE and sleep, so the test kills at a known moment."""
+    """Tests only (``tests/test_output_folder.py``): with ``LTMAP_TEST_PAUSE`` = ``POINT:FILE``, at
+    ``POINT`` create FILE and wait while it exists (at most 600 s), so the test kills the run at a
+    known moment, or deletes FILE to let it go on."""
     spec = os.environ.get(TEST_PAUSE_ENV)
     if spec and spec.split(":", 1)[0] == point:
-        Path(spec.split(":", 1)[1]).touch()
-        time.sleep(600)
+        marker = Path(spec.split(":", 1)[1])
+        marker.touch()
+        t_end = time.monotonic() + 600
+        while marker.exists() and time.monotonic() < t_end:
+            time.sleep(0.01)
