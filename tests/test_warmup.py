@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from ltmap_cli.config import Config
-from ltmap_cli.pipeline.warmup import GROUPS, replay_groups
+from ltmap_cli.pipeline.warmup import COMPILE_S, GROUPS, children_of, replay_groups
 
 ROOT = Path(__file__).resolve().parent.parent
 HOUSE = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
@@ -59,10 +59,24 @@ def test_replay_compiles_nothing_the_warm_up_did_not(tmp_path):
 def test_replay_groups():
     cfg = Config()
     assert replay_groups(cfg.replay) == ["rays", "maps"]
-    assert replay_groups(cfg.replay, raw_depth=True) == ["rays", "maps", "depth16"]
+    assert replay_groups(cfg.replay, raw_depth=True) == ["rays", "maps", "depth16", "projective16"]
+    assert replay_groups(cfg.replay, raw_depth=True, projective=False) == ["rays", "maps", "depth16"]
     cfg.replay.mcap_out, cfg.replay.plan_goal = True, [1.0, 2.0]
     assert replay_groups(cfg.replay) == ["rays", "maps", "fused_scan", "planner"]
-    assert set(replay_groups(cfg.replay, raw_depth=True)) <= set(GROUPS)
+    assert set(replay_groups(cfg.replay, raw_depth=True)) <= set(GROUPS) == set(COMPILE_S)
+
+
+def test_children_share_the_groups_by_their_compiling():
+    """At most cores + 1 children, the costliest group first, each to the child with the least
+    so far: on 2 cores the depth replay's four groups in three children (by hand from COMPILE_S:
+    projective16 12.7 alone; rays 7.7; maps 6.4 + depth16 3.4 = 9.8), one each with cores to spare."""
+    four = ["rays", "maps", "depth16", "projective16"]
+    assert children_of(four, 2) == [["projective16"], ["rays"], ["maps", "depth16"]]
+    assert children_of(four, 8) == [["projective16"], ["rays"], ["maps"], ["depth16"]]
+    assert children_of(four, 1) == [["projective16", "depth16"], ["rays", "maps"]]
+    six = four + ["fused_scan", "planner"]
+    assert children_of(six, 2) == [["projective16"], ["rays", "planner"], ["maps", "depth16", "fused_scan"]]
+    assert sorted(g for c in children_of(six, 2) for g in c) == sorted(six) and children_of([], 2) == []
 
 
 def test_background_compile_says_each_group_ended():

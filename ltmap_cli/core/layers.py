@@ -930,7 +930,8 @@ class LayeredMap:
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         q.ch_meta[0] = 0
-        self._apply(q, hits, misses, 0, counters)
+        if len(hits) or len(misses):  # (none: nothing to do, and a first run's projective16 warm-up
+            self._apply(q, hits, misses, 0, counters)  # group leaves this kernel to the rays group)
         if projection is not None and projection.skipped is not None:  # blocks a worker took as quiet
             projection = self._fill_stale(q, projection)
         if projection is not None:  # the misses the projection makes (core.projective), block by block

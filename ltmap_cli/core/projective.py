@@ -413,6 +413,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     n = 0
     cap = keys.shape[0]
     nq = quiet_keys.shape[0]
+    qi = 0
     for b in range(start, nblocks):
         if n == cap or n_skipped == skipped.shape[0]:
             return n, n_skipped, b
@@ -424,12 +425,12 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
         if cls == CULLED:
             continue
         key = pack_block(bi, bj, bk)
-        if nq:
-            at = np.searchsorted(quiet_keys, key)
-            if at < nq and quiet_keys[at] == key:
-                skipped[n_skipped] = b
-                n_skipped += 1
-                continue
+        while qi < nq and quiet_keys[qi] < key:  # (the blocks come in key order: a merge walk, no
+            qi += 1  # search; np.searchsorted cost the first run 0.9 s of compiling)
+        if qi < nq and quiet_keys[qi] == key:
+            skipped[n_skipped] = b
+            n_skipped += 1
+            continue
         keys[n] = key
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
                        e, masks[n], fs, ks):  # fmt: skip

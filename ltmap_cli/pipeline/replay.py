@@ -269,7 +269,8 @@ class Replay:
             start_ns, end_ns = self._window(logs)
             self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
             if not kernels_cached():  # the first run: compile while the log is read and checked
-                self._compile = BackgroundCompile(replay_groups(cfg.replay, bool(sel.depths) and self.fast))
+                self._compile = BackgroundCompile(replay_groups(cfg.replay, bool(sel.depths) and self.fast,
+                                                             cfg.map.sensor.depth_integration == "projective"))
             for s in self.sinks:
                 s.start(run, tf)
             self.scheduler = Scheduler(tf, wait_ns=int(cfg.replay.tf_wait * NS), timer=timer,

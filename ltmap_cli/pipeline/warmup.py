@@ -4,10 +4,11 @@ minute of CPU in one process), then loads them from its disk cache (well under a
 Compiling is split into groups that share almost no kernel: ``rays`` (the rays of points and
 scans, the voxels they pass, their updates of O), ``maps`` (the tick rules, the projection, the
 snapshots' tree walk, the events' grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
-``planner`` (``--plan-goal``) and one per depth image encoding (``depth16``: 16UC1/mono16,
-``depth32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
+``planner`` (``--plan-goal``) and two per depth image encoding, the depth kernel's and the
+projective integration's (``depth16``, ``projective16``: 16UC1/mono16; ``depth32``,
+``projective32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
 cache ``BackgroundCompile`` compiles the groups a run will need in child processes, one per
-group, in parallel with each other and with opening and checking the log, so that the first run
+group or two in one when the cores are few (``children_of``), in parallel with each other and with opening and checking the log, so that the first run
 on two cores waits for about half the compiling instead of all of it, and a log that fails its
 checks (a missing transform) fails before any compiling is waited for. The children write
 numba's cache; the replay then loads the kernels from it. A kernel that two groups call is
@@ -83,24 +84,26 @@ def warm_planner(cfg: MapConfig) -> None:
     plan_path(inflate(np.zeros((4, 4), dtype=bool), 1.5), (0, 0), (3, 3))
 
 
-def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
-    """The fused depth kernel for raw pixels of ``dtype``, C-contiguous or a strided view (numba
-    compiles one specialization per dtype and layout), and with projective depth integration the
-    projection's kernels and the map thread's use of them. Not the voxels rays pass
-    (``frame_voxels``, 10 s of compiling): the ``rays`` group compiles them, in every replay,
-    with the same types (this group took 44.6 s alone with them, 32.4 s without; in a first run
-    this group mostly loaded them from the cache the ``rays`` child had written by then, so the
-    cold replay measured the same, 47 s on an AMD Zen 3 VM, but it no longer depends on that
-    race)."""
+def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "projection")) -> None:
+    """The depth kernels for raw pixels of ``dtype``, C-contiguous or a strided view (numba
+    compiles one specialization per dtype and layout): ``rays``, the fused depth kernel (the
+    frame's rays), and ``projection``, with projective depth integration the projection's
+    kernels and the map thread's use of them. Not the voxels rays pass (``frame_voxels``, 10 s
+    of compiling): the ``rays`` group compiles them, in every replay, with the same types. The
+    two parts are two groups (``depth16``, ``projective16``): together they were the one group a
+    first run waited for (17.7 s of 25.7 s on a 2-core AMD EPYC VM; the other groups 8.6 s and
+    7.3 s), apart they compile in parallel."""
     m = LayeredMap(cfg)
     depth = np.full((2, 4), 1000 if np.dtype(dtype).kind == "u" else 1.0, dtype=dtype)
     depth = depth[:, :2] if contiguous else depth[:, ::2]
     if contiguous:
         depth = np.ascontiguousarray(depth)
     T = _pose()
-    ends, _ = m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T, dedupe=m.cfg.sensor.dedupe_dense)
-    if m.cfg.sensor.depth_integration != "projective":
+    if "rays" in parts:
+        m.depth_rays(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, T, dedupe=m.cfg.sensor.dedupe_dense)
+    if "projection" not in parts or m.cfg.sensor.depth_integration != "projective":
         return
+    ends = np.array([[-0.5, -0.5, 2.0], [0.5, -0.5, 2.0], [-0.5, 0.5, 2.0], [0.5, 0.5, 2.0]])  # (depth_rays' for them)
     none = np.empty(0, dtype=np.int64)
     m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
     # the map thread's fill of blocks a worker skipped as quiet that are quiet no more: every
@@ -112,21 +115,26 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True) -> None:
 
 
 GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
-          "depth16": lambda c: warm_depth(c, np.uint16),
-          "depth32": lambda c: warm_depth(c, np.float32)}  # fmt: skip
+          "depth16": lambda c: warm_depth(c, np.uint16, parts=("rays",)),
+          "projective16": lambda c: warm_depth(c, np.uint16, parts=("projection",)),
+          "depth32": lambda c: warm_depth(c, np.float32, parts=("rays",)),
+          "projective32": lambda c: warm_depth(c, np.float32, parts=("projection",))}  # fmt: skip
 
 
-def replay_groups(replay, raw_depth: bool = False) -> list[str]:
+def replay_groups(replay, raw_depth: bool = False, projective: bool = True) -> list[str]:
     """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays`` and
     ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
-    ``raw_depth`` (raw depth images) ``depth16``, the encoding of most cameras (a 32FC1 log warms
-    ``depth32`` at its first frame)."""
+    ``raw_depth`` (raw depth images) ``depth16``, the encoding of most cameras, and with
+    ``projective`` (``map.sensor.depth_integration``) ``projective16`` too (a 32FC1 log warms
+    the 32-bit kernels at its first frame)."""
     groups = ["rays", "maps"]
     if replay.mcap_out:
         groups.append("fused_scan")
     if replay.plan_goal:
         groups.append("planner")
-    return groups + (["depth16"] if raw_depth else [])
+    if raw_depth:
+        groups += ["depth16", "projective16"] if projective else ["depth16"]
+    return groups
 
 
 def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
@@ -148,14 +156,40 @@ def kernels_cached() -> bool:
     return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
 
 
+# CPU seconds each group took to compile alone, its child's ~0.9 s of start-up left out (a 2-core
+# AMD EPYC VM, 2026-12-03; the 32-bit depth groups taken as the 16-bit ones): how the children
+# share the groups (``children_of``)
+COMPILE_S = {"rays": 7.7, "maps": 6.4, "fused_scan": 0.7, "planner": 2.6, "depth16": 3.4, "projective16": 12.7,
+             "depth32": 3.4, "projective32": 12.7}  # fmt: skip
+
+
+def children_of(groups, cores: int) -> list[list[str]]:
+    """``groups`` shared among at most ``cores + 1`` child processes, the costliest group first,
+    each to the child with the least compiling so far (``COMPILE_S``). Each child costs its
+    start-up, and the children share the cores evenly, so the run waits for the last one: on 2
+    cores the house sample's four groups took 19.4 s in four children, 17.1 to 17.7 s in three."""
+    children: list[list[str]] = []
+    load: list[float] = []
+    for g in sorted(groups, key=lambda g: -COMPILE_S.get(g, 1.0)):
+        if len(children) < cores + 1:
+            children.append([g])
+            load.append(COMPILE_S.get(g, 1.0))
+            continue
+        i = load.index(min(load))
+        children[i].append(g)
+        load[i] += COMPILE_S.get(g, 1.0)
+    return children
+
+
 class BackgroundCompile:
-    """Child processes that compile kernel groups into numba's cache, started at once;
-    ``wait()`` before calling the kernels, ``stop()`` when the run ends early."""
+    """Child processes that compile kernel groups into numba's cache, started at once
+    (``children_of`` this machine's cores); ``wait()`` before calling the kernels, ``stop()``
+    when the run ends early."""
 
     def __init__(self, groups):
         self.procs = []
-        for g in groups:
-            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, g], stdin=subprocess.DEVNULL,
+        for child in children_of(groups, len(os.sched_getaffinity(0))):
+            self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, *child], stdin=subprocess.DEVNULL,
                                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
 
     def wait(self, on_done=None, poll_s: float = 0.2) -> None:
@@ -179,5 +213,5 @@ class BackgroundCompile:
         self.procs = []
 
 
-if __name__ == "__main__":  # a BackgroundCompile child: python -m ltmap_cli.pipeline.warmup GROUP
+if __name__ == "__main__":  # a BackgroundCompile child: python -m ltmap_cli.pipeline.warmup GROUP [GROUP ...]
     warm_up(MapConfig(), sys.argv[1:])
