@@ -159,3 +159,64 @@ def test_kernels_are_not_compiled_once_per_literal():
     twice = {f"{name}, argument {pos}: {sorted(kinds)}" for name, seen in calls.items() for pos, kinds in seen.items()
              if len(kinds) > 1 and kinds != {"variable"}}  # fmt: skip
     assert not twice
+
+
+def _first_run_groups(tmp_path, monkeypatch, name, msgs):
+    """The groups a first run (``kernels_cached`` False) hands its compiling children, each time
+    it starts some (recorded, not started: this process's kernels are compiled already)."""
+    from logfactory import write_log
+
+    import ltmap_cli.pipeline.replay as replay_mod
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    started = []
+
+    class Recorded:
+        def __init__(self, groups):
+            started.append(list(groups))
+
+        def wait(self, on_done=None, poll_s=0.2):
+            pass
+
+        def stop(self):
+            pass
+
+    monkeypatch.setattr(replay_mod, "kernels_cached", lambda: False)
+    monkeypatch.setattr(replay_mod, "BackgroundCompile", Recorded)
+    cfg = Config()
+    cfg.replay.plots = False
+    log = write_log(tmp_path / f"{name}.mcap", "mcap-ros2", msgs)
+    run = Replay(cfg, ReplayRequest([log], tmp_path / name))
+    run.run()
+    return started
+
+
+def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path, monkeypatch):
+    """The children start at the first depth image, whose pixels say 16UC1 or 32FC1 (started
+    before it, with the 16-bit kernels, a 32FC1 log compiled those for nothing and then its own
+    in the middle of mapping); without depth images, at the first frame placed, without them."""
+    import numpy as np
+    from logfactory import camera_info, image, scan, tf
+
+    S = 10**9
+    place = [tf(S // 2, [("map", "cam", (0.0, 0.0, 1.0), (0.5, -0.5, 0.5, -0.5)),
+                         ("map", "laser", (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0))], static=True)]  # fmt: skip
+
+    def depth_msgs(encoding):
+        px = np.full((12, 16), 2000, dtype=np.uint16) if encoding == "16UC1" else np.full((12, 16), 2.0, np.float32)
+        out = []
+        for i in range(4):
+            t = S + i * S // 10
+            out.append(scan("/scan", t, [2.0] * 90))  # (a scan first: the depth image comes after it)
+            out.append(camera_info("/cam/depth/camera_info", t, width=16, height=12, fx=14, fy=14, cx=7.5, cy=5.5))
+            out.append(image("/cam/depth/image_raw", t + 1, px, encoding=encoding, frame_id="cam"))
+        return out
+
+    base = ["rays", "maps"]
+    got = _first_run_groups(tmp_path, monkeypatch, "d32", place + depth_msgs("32FC1"))
+    assert got == [base + ["depth32", "projective32"]]
+    got = _first_run_groups(tmp_path, monkeypatch, "d16", place + depth_msgs("16UC1"))
+    assert got == [base + ["depth16", "projective16"]]
+    scans = [m for m in depth_msgs("16UC1") if m.topic == "/scan"]
+    got = _first_run_groups(tmp_path, monkeypatch, "scans", place + scans)
+    assert got == [base]

@@ -170,6 +170,9 @@ class Replay:
         self.sinks: list[Sink] = []
         self._last_progress = 0.0
         self._compile: BackgroundCompile | None = None
+        self._compile_pending = False  # a first run whose compiling children are not started yet
+        self._cold_depth = False  # ... and which will want the depth kernels
+        self._compiled_depth: tuple | None = None  # the (dtype, contiguous) key of the depth kernels they compile
         self.localization = None  # the --localize pre-pass's result
         self._next_loc = 0
         self._warm_depth: set = set()  # (dtype, contiguous) of the raw depth images warmed up
@@ -268,9 +271,9 @@ class Replay:
             run.log_start_ns = logs.start_ns
             start_ns, end_ns = self._window(logs)
             self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
-            if not kernels_cached():  # the first run: compile while the log is read and checked
-                self._compile = BackgroundCompile(replay_groups(cfg.replay, bool(sel.depths) and self.fast,
-                                                             cfg.map.sensor.depth_integration == "projective"))
+            if not kernels_cached():  # the first run: compile while the log is read and checked, from
+                self._cold_depth = bool(sel.depths) and self.fast  # its first depth image or frame (_start_compile)
+                self._compile_pending = True
             for s in self.sinks:
                 s.start(run, tf)
             self.scheduler = Scheduler(tf, wait_ns=int(cfg.replay.tf_wait * NS), timer=timer,
@@ -309,6 +312,8 @@ class Replay:
                                             "by_s": round((prev - item.stamp_ns) / NS, 3),
                                             "split_s": round((last_log[topic] + log_ns) / 2e9 - logs.start_ns / NS, 3)}  # fmt: skip
                         last_stamp[topic], last_log[topic] = item.stamp_ns, log_ns
+                    if self._compile_pending and (not self._cold_depth or isinstance(item, RawDepthFrame)):
+                        self._start_compile(item)
                     self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
@@ -488,6 +493,8 @@ class Replay:
             raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
             if raw is not None and (key := (raw.dtype.newbyteorder("="), raw.flags.c_contiguous)) not in self._warm_depth:
                 self._warm_depth.add(key)
+                if self._compile is not None and key != self._compiled_depth:  # (a first run; not what the
+                    self._report_progress(None, force=True, phase=COMPILING)  # children compiled: here, now)
                 with self.timer("warmup"):
                     warm_depth(self.cfg.map, *key)
             if self.state.fixed_frame is None:
@@ -517,10 +524,27 @@ class Replay:
                 warnings.warn(LtmapWarning(text), stacklevel=2)
         return T
 
+    def _start_compile(self, item) -> None:
+        """A first run: start the children that compile the kernel groups it calls
+        (``warmup.replay_groups``), at its first message, or with raw depth images at the first of
+        them (a few messages later), whose pixels say which depth kernels: 16UC1 or 32FC1. (Started
+        at once with the 16-bit ones, a 32FC1 log compiled those for nothing, then its own for 7 s
+        in the middle of mapping.) With no depth image before the first frame is placed
+        (``_warm_up``), the 16-bit ones, the encoding of most cameras."""
+        self._compile_pending = False
+        cfg = self.cfg
+        bits = "32" if isinstance(item, RawDepthFrame) and item.raw.dtype.kind == "f" else "16"
+        if self._cold_depth:  # (what the children compile: C-contiguous images of that encoding)
+            self._compiled_depth = (np.dtype(np.float32 if bits == "32" else np.uint16), True)
+        self._compile = BackgroundCompile(replay_groups(cfg.replay, self._cold_depth,
+                                                        cfg.map.sensor.depth_integration == "projective", bits))
+
     def _warm_up(self) -> None:
         """The kernels' first calls, before the first frame is cast: so a log whose frames are all
         skipped fails before any compiling is waited for, and no frame's time includes it."""
         self._warm = True
+        if self._compile_pending:
+            self._start_compile(None)
         with self.timer("warmup"):
             if self._compile is not None:
                 self._report_progress(None, force=True, phase=COMPILING)

@@ -8,9 +8,12 @@ snapshots' tree walk, the events' grouping), ``fused_scan`` (the virtual scan of
 projective integration's (``depth16``, ``projective16``: 16UC1/mono16; ``depth32``,
 ``projective32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
 cache ``BackgroundCompile`` compiles the groups a run will need in child processes, one per
-group or two in one when the cores are few (``children_of``), in parallel with each other and with opening and checking the log, so that the first run
-on two cores waits for about half the compiling instead of all of it, and a log that fails its
-checks (a missing transform) fails before any compiling is waited for. The children write
+group or two in one when the cores are few (``children_of``), in parallel with each other and
+with reading and checking the log (started at its first message, or, when it has raw depth
+images, at the first of them, whose pixels say which encoding's groups: the replay's
+``_start_compile``), so that the first run on two cores waits for about half the compiling
+instead of all of it, and a log that fails its checks (a missing transform) fails before any
+compiling is waited for. The children write
 numba's cache; the replay then loads the kernels from it. A kernel that two groups call is
 compiled in both children, so each group makes its map without the others' kernels (``maps``
 seeds D instead of casting rays); only the grid's block lookups (0.3 s) and O's updates (2 s)
@@ -121,19 +124,18 @@ GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "
           "projective32": lambda c: warm_depth(c, np.float32, parts=("projection",))}  # fmt: skip
 
 
-def replay_groups(replay, raw_depth: bool = False, projective: bool = True) -> list[str]:
+def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits: str = "16") -> list[str]:
     """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays`` and
     ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
-    ``raw_depth`` (raw depth images) ``depth16``, the encoding of most cameras, and with
-    ``projective`` (``map.sensor.depth_integration``) ``projective16`` too (a 32FC1 log warms
-    the 32-bit kernels at its first frame)."""
+    ``raw_depth`` (raw depth images) ``depth16`` (``bits`` "32": ``depth32``), and with
+    ``projective`` (``map.sensor.depth_integration``) ``projective16`` (``projective32``) too."""
     groups = ["rays", "maps"]
     if replay.mcap_out:
         groups.append("fused_scan")
     if replay.plan_goal:
         groups.append("planner")
     if raw_depth:
-        groups += ["depth16", "projective16"] if projective else ["depth16"]
+        groups += [f"depth{bits}", f"projective{bits}"] if projective else [f"depth{bits}"]
     return groups
 
 
