@@ -43,6 +43,7 @@ from .projective import (
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
+    projective_blocks,
     projective_fill,
     quiet_keys_in_box,
     stale_skips,
@@ -807,11 +808,21 @@ class LayeredMap:
         R, t = T[:3, :3], T[:3, 3]
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
         band = float(self.cfg.sensor.projective_band)
-        keys, masks, skipped, reach, tmin, tmax, dil, box = depth_projection_blocks(
+        quiet = self._quiet_keys if self.quiet_blocks else _NO_KEYS
+        keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box = depth_projection_blocks(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(t), Tinv,
-            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS,
-            self._quiet_keys if self.quiet_blocks else _NO_KEYS,
+            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS, quiet,
         )  # fmt: skip
+        while nxt >= 0:  # the arrays are full: twice the room, and on from the block it stopped at
+            if n == len(keys):
+                keys = np.concatenate([keys[:n], np.empty(n, dtype=np.int64)])
+                masks = np.concatenate([masks[:n], np.empty((n, 8), dtype=np.uint64)])
+            if ns == len(skipped):
+                skipped = np.concatenate([skipped[:ns], np.empty(ns, dtype=np.int64)])
+            m, ns, nxt = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv,
+                                           box, self.resolution, band, keys[n:], masks[n:], nxt, quiet, skipped, ns)  # fmt: skip
+            n += m
+        keys, masks, skipped = keys[:n], masks[:n], skipped[:ns]
         if not len(skipped):
             return DepthProjection(keys, masks, box)
         return DepthProjection(keys, masks, box, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),

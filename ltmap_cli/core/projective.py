@@ -472,11 +472,14 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
                             quiet_keys):  # fmt: skip
     """``depth_range_image``, the frame's box (``ends_box``) and ``projective_blocks`` in one call
     (a worker thread then takes the GIL once for them instead of three times, with numpy in
-    between): (keys, masks) of the blocks with misses, the numbers of the blocks skipped as
-    ``quiet_keys``, and the range image, tiles and box (``projective_fill`` needs them). The
-    arrays grow from ``chunk`` blocks (memory follows the frustum's free space, not the box: a
-    box at 0.01 m holds millions of blocks). ``origin``: the camera's position; ``Tinv`` (3, 4):
-    fixed frame -> optical frame."""
+    between): (keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box): ``n`` blocks with
+    misses in ``keys``, ``masks``, the numbers of ``ns`` blocks skipped as ``quiet_keys`` in
+    ``skipped``, and the range image, tiles and box (``projective_fill`` needs them). The arrays
+    hold ``chunk`` blocks (memory follows the frustum's free space, not the box: a box at 0.01 m
+    holds millions of blocks); when they are full, ``nxt`` >= 0 is the block to go on from with
+    ``projective_blocks`` in larger arrays (``LayeredMap.depth_projection``; in Python: the growth
+    loop here cost a first run about 1.5 s of compiling). ``origin``: the camera's position;
+    ``Tinv`` (3, 4): fixed frame -> optical frame."""
     reach, tmin, tmax, dil = depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band)
     box = ends_box(origin, ends, 1.0 / res)
     nb = np.int64(1)
@@ -489,24 +492,7 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     zero = np.int64(0)  # (not a literal 0: numba would compile projective_blocks twice, 1.2 s)
     n, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, zero,
                                    quiet_keys, skipped, zero)  # fmt: skip
-    while nxt >= 0:  # full: twice the room, and on from the block it stopped at
-        if n == keys.shape[0]:
-            keys2 = np.empty(2 * keys.shape[0], dtype=np.int64)
-            masks2 = np.empty((2 * keys.shape[0], 8), dtype=np.uint64)
-            for r in range(n):  # (element by element: see _pyramid)
-                keys2[r] = keys[r]
-                for w in range(8):
-                    masks2[r, w] = masks[r, w]
-            keys, masks = keys2, masks2
-        if ns == skipped.shape[0]:
-            skipped2 = np.empty(2 * skipped.shape[0], dtype=np.int64)
-            for r in range(ns):
-                skipped2[r] = skipped[r]
-            skipped = skipped2
-        m, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys[n:],
-                                       masks[n:], nxt, quiet_keys, skipped, ns)  # fmt: skip
-        n += m
-    return keys[:n], masks[:n], skipped[:ns], reach, tmin, tmax, dil, box
+    return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
 
 
 @njit(cache=True, nogil=True)
