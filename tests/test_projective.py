@@ -277,6 +277,14 @@ def test_projection_listed_in_chunks_is_the_same(monkeypatch):
     chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     assert len(whole.keys) > 7 * 3
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
+    # and with every other block listed as quiet: the skipped blocks' list fills its chunks too
+    m._quiet_keys = np.ascontiguousarray(whole.keys[::2])
+    chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
+    monkeypatch.setattr(layers, "PROJECTIVE_CHUNK_BLOCKS", 1 << 14)
+    whole = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
+    assert len(whole.skipped) == len(m._quiet_keys) > 7 * 2
+    assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
+    assert np.array_equal(whole.skipped, chunked.skipped)
 
 
 def _encoded(depth_mm: np.ndarray, float32: bool) -> np.ndarray:
