@@ -225,13 +225,16 @@ def compressed_depth(topic: str, t_ns: int, array: Any, *, encoding: str = "16UC
 
 def camera_info(topic: str, t_ns: int, *, width: int, height: int, fx: float, fy: float, cx: float,
                 cy: float, frame_id: str = "camera_optical", d: Sequence[float] = (0.0,) * 5,
-                model: str = "plumb_bob") -> Msg:
+                model: str = "plumb_bob", binning: tuple[int, int] = (0, 0),
+                roi: tuple[int, int, int, int] = (0, 0, 0, 0)) -> Msg:
+    """A CameraInfo; ``roi``: (x_offset, y_offset, width, height), full-resolution pixels."""
     k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
     p = [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
     return Msg(topic, t_ns, "sensor_msgs/msg/CameraInfo", {
         "header": header(t_ns, frame_id), "height": height, "width": width,
         "distortion_model": model, "d": list(d), "k": k,
-        "r": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], "p": p})
+        "r": [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], "p": p, "binning_x": binning[0], "binning_y": binning[1],
+        "roi": {"x_offset": roi[0], "y_offset": roi[1], "width": roi[2], "height": roi[3], "do_rectify": False}})
 
 
 def tf(t_ns: int, transforms: Iterable[tuple], *, static: bool = False, topic: str | None = None) -> Msg:

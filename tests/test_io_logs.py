@@ -13,6 +13,7 @@ from logfactory import (
     FORMATS,
     SUFFIX,
     camera_info,
+    compressed_depth,
     cloud,
     image,
     odometry,
@@ -792,6 +793,49 @@ def test_depth_camera_info_without_a_usable_calibration_is_refused(k):
         _checked_intrinsics(info, (480, 640), "at 1.0 s")
     ok = SimpleNamespace(k=[500.0, 0, 320, 0, 500.0, 240, 0, 0, 1], width=640, height=480)
     assert _checked_intrinsics(ok, (480, 640), "at 1.0 s").fx == 500.0
+
+
+@pytest.mark.parametrize("binning, roi, want", [
+    ((0, 0), (0, 0, 0, 0), (64, 48, 60.0, 62.0, 31.5, 23.5)),  # neither: K and the size as they are
+    ((2, 2), (0, 0, 0, 0), (32, 24, 30.0, 31.0, 15.75, 11.75)),  # binned: fx / 2, cx / 2, size / 2
+    ((1, 1), (8, 4, 32, 24), (32, 24, 60.0, 62.0, 23.5, 19.5)),  # cropped: cx - x_offset
+    ((2, 2), (8, 4, 32, 24), (16, 12, 30.0, 31.0, 11.75, 9.75)),  # both: (cx - x_offset) / 2
+    ((1, 2), (8, 0, 0, 0), (56, 24, 60.0, 31.0, 23.5, 11.75)),  # a zero ROI size: to the image's edge
+])  # fmt: skip
+def test_depth_camera_info_binning_and_roi_as_image_geometry_applies_them(tmp_path, binning, roi, want):
+    """A CameraInfo's K and size are the full camera's; the images are its ROI divided by its
+    binning (image_geometry's PinholeCameraModel; by hand, from K fx 60, fy 62, cx 31.5, cy 23.5
+    of a 64 x 48 camera). Read back from a log of every format (the direct CDR parser of ROS 2
+    messages and the generic deserializers), the frames' intrinsics are those, and the pixels
+    the images'."""
+    from ltmap_cli.io.decode import RawDepthFrame
+
+    w, h = want[:2]
+    px = (1000 + np.arange(w * h) % 500).astype(np.uint16).reshape(h, w)
+    msgs = [tf(S // 2, [("map", "camera_optical", (0.0, 0.0, 1.0))], static=True),
+            camera_info("/cam/depth/camera_info", S, width=64, height=48, fx=60.0, fy=62.0, cx=31.5, cy=23.5,
+                        binning=binning, roi=roi),
+            image("/cam/depth/image_raw", S + 1, px),
+            # the same through compressedDepth (its PNG's size is checked against the CameraInfo's)
+            camera_info("/cam2/depth/camera_info", S, width=64, height=48, fx=60.0, fy=62.0, cx=31.5, cy=23.5,
+                        binning=binning, roi=roi),
+            compressed_depth("/cam2/depth/image_raw/compressedDepth", S + 2, px)]  # fmt: skip
+    for fmt in FORMATS:
+        path = _log(tmp_path, fmt, msgs, name=f"binned_{fmt}")
+        with open_logs(path) as logs:
+            frames = [f for _, _, f in logs.messages(logs.select(), fast=True) if isinstance(f, RawDepthFrame)]
+        assert len(frames) == 2, fmt
+        for f in frames:
+            c = f.intrinsics
+            assert (c.width, c.height, c.fx, c.fy, c.cx, c.cy) == want, fmt
+            assert np.array_equal(f.raw, px)
+    # an image of another size: refused in one line that says what the CameraInfo describes
+    other = msgs[:2] + [image("/cam/depth/image_raw", S + 1, px[:-1])]
+    with open_logs(_log(tmp_path, "mcap-ros2", other, name="other")) as logs:
+        with pytest.raises(LogReadError, match=f"is {w}x{h - 1} but its CameraInfo says {w}x{h}") as e:
+            list(logs.messages(logs.select(), fast=True))
+    if binning != (0, 0):
+        assert f"64x48 with binning {binning[0]}x{binning[1]}" in str(e.value)
 
 
 def _window_log():

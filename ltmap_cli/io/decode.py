@@ -126,11 +126,36 @@ def decode_cloud(msg: Any, topic: str, where: str) -> CloudFrame:
                       points=cloud_points(msg, where), topic=topic)
 
 
+def binning_roi(info: Any) -> tuple[int, int, tuple[int, int, int, int] | None]:
+    """A CameraInfo's binning (0 means 1: none) and region of interest (x_offset, y_offset,
+    width, height in full-resolution pixels; None when all zero: the whole image)."""
+    bx = int(getattr(info, "binning_x", 0) or 0) or 1
+    by = int(getattr(info, "binning_y", 0) or 0) or 1
+    roi = getattr(info, "roi", None)
+    box = None if roi is None else (int(roi.x_offset), int(roi.y_offset), int(roi.width), int(roi.height))
+    return bx, by, (None if box == (0, 0, 0, 0) else box)
+
+
 def intrinsics(info: Any) -> CameraIntrinsics:
-    """CameraIntrinsics from a CameraInfo (ROS 1 ``K`` or ROS 2 ``k``)."""
+    """CameraIntrinsics of the images a CameraInfo describes (ROS 1 ``K`` or ROS 2 ``k``), with its
+    binning and region of interest applied as image_geometry's PinholeCameraModel applies them:
+    K, width and height are the full camera's; an image is the ROI (all zero: the whole image; a
+    zero width or height: to the image's edge) divided by the binning, so its principal point is
+    (cx - x_offset) / binning_x, its focal length fx / binning_x, its width the ROI's // binning_x
+    (and so in y). Without either, K and the size as they are."""
     k = np.asarray(_attr(info, "k", "K"), dtype=np.float64).reshape(-1)
-    return CameraIntrinsics(width=int(info.width), height=int(info.height), fx=float(k[0]), fy=float(k[4]),
-                            cx=float(k[2]), cy=float(k[5]))
+    fx, fy, cx, cy = float(k[0]), float(k[4]), float(k[2]), float(k[5])
+    w, h = int(info.width), int(info.height)
+    bx, by, roi = binning_roi(info)
+    if roi is not None:
+        xo, yo, rw, rh = roi
+        cx, cy = cx - xo, cy - yo
+        w, h = rw or max(w - xo, 0), rh or max(h - yo, 0)
+    if bx > 1:
+        fx, cx, w = fx / bx, cx / bx, w // bx
+    if by > 1:
+        fy, cy, h = fy / by, cy / by, h // by
+    return CameraIntrinsics(width=w, height=h, fx=fx, fy=fy, cx=cx, cy=cy)
 
 
 MM = 0.001  # metres per unit of a 16-bit depth image (16UC1 / mono16) unless the log says otherwise
@@ -169,8 +194,11 @@ def _checked_intrinsics(info: Any, shape: tuple[int, int], where: str) -> Camera
     if (intr.width, intr.height) == (0, 0):
         intr = CameraIntrinsics(w, h, intr.fx, intr.fy, intr.cx, intr.cy)
     elif (intr.width, intr.height) != (w, h):
+        bx, by, roi = binning_roi(info)
+        how = (f" ({int(info.width)}x{int(info.height)} with binning {bx}x{by}"
+               f"{f' and ROI {roi[2]}x{roi[3]} at ({roi[0]}, {roi[1]})' if roi else ''})") if bx > 1 or by > 1 or roi else ""
         raise LogReadError(f"depth Image {where} is {w}x{h} but its CameraInfo says "
-                           f"{intr.width}x{intr.height}; pair it with the right camera_info topic")
+                           f"{intr.width}x{intr.height}{how}; pair it with the right camera_info topic")
     if not (0 < intr.fx < np.inf and 0 < intr.fy < np.inf):  # (NaN fails too)
         raise LogReadError(f"CameraInfo for depth Image {where} has focal lengths fx={intr.fx}, fy={intr.fy}; "
                            f"the camera is uncalibrated and its depth cannot be placed")
@@ -229,6 +257,8 @@ _F32x7 = struct.Struct("<7f")
 _F64x3 = struct.Struct("<3d")
 _F64x4 = struct.Struct("<4d")
 _F64x9 = struct.Struct("<9d")
+_F64x12 = struct.Struct("<12d")
+_U32x6 = struct.Struct("<6I")
 
 
 class _Cdr:
@@ -321,7 +351,11 @@ def cdr_camera_info(data: bytes | memoryview) -> _Obj:
     model = c.string()
     d = c.array("<f8", 8)
     k = c.take(_F64x9, 8)
-    return _Obj(header=h, height=height, width=width, distortion_model=model, d=d, k=k)
+    c.take(_F64x9, 8)  # r
+    c.take(_F64x12, 8)  # p
+    bx, by, xo, yo, rh, rw = c.take(_U32x6, 4)  # binning_x, binning_y, roi: x_offset, y_offset, height, width
+    return _Obj(header=h, height=height, width=width, distortion_model=model, d=d, k=k, binning_x=bx,
+                binning_y=by, roi=_Obj(x_offset=xo, y_offset=yo, height=rh, width=rw))
 
 
 def cdr_tf(data: bytes | memoryview) -> _Obj:
@@ -403,9 +437,10 @@ def depth_raw(msg: Any, where: str) -> np.ndarray:
 
 
 def intrinsics_size(info: Any) -> tuple[int, int] | None:
-    """(width, height) a CameraInfo gives, None when it gives none (0 x 0)."""
-    w, h = int(info.width), int(info.height)
-    return (w, h) if (w, h) != (0, 0) else None
+    """(width, height) of the images a CameraInfo describes (``intrinsics``: its binning and ROI
+    applied), None when it gives none (0 x 0)."""
+    intr = intrinsics(info)
+    return (intr.width, intr.height) if (intr.width, intr.height) != (0, 0) else None
 
 
 def depth_frame(header: Any, raw: np.ndarray, info: Any, topic: str, where: str, units: float | None,
