@@ -75,6 +75,7 @@ class ReplayConfig:
     cloud_topics: list[str] = field(default_factory=list)
     depth_topics: list[str] = field(default_factory=list)
     tf: list[str] = field(default_factory=list)  # extra mounts: parent:child=x,y,z,roll,pitch,yaw
+    camera_info: list[str] = field(default_factory=list)  # [TOPIC=]FILE: a depth camera's calibration YAML (io.camera_file)
     allow_truncated: bool = False
     max_message_mb: float = DEFAULT_MAX_MESSAGE_MB  # largest chunk / message read (uncompressed); more is refused
     tf_wait: float = 0.5  # s of log time a sensor frame waits for the tf samples after its stamp

@@ -13,8 +13,8 @@ from logfactory import (
     FORMATS,
     SUFFIX,
     camera_info,
-    compressed_depth,
     cloud,
+    compressed_depth,
     image,
     odometry,
     scan,
@@ -831,9 +831,9 @@ def test_depth_camera_info_binning_and_roi_as_image_geometry_applies_them(tmp_pa
             assert np.array_equal(f.raw, px)
     # an image of another size: refused in one line that says what the CameraInfo describes
     other = msgs[:2] + [image("/cam/depth/image_raw", S + 1, px[:-1])]
-    with open_logs(_log(tmp_path, "mcap-ros2", other, name="other")) as logs:
-        with pytest.raises(LogReadError, match=f"is {w}x{h - 1} but its CameraInfo says {w}x{h}") as e:
-            list(logs.messages(logs.select(), fast=True))
+    with open_logs(_log(tmp_path, "mcap-ros2", other, name="other")) as logs, \
+            pytest.raises(LogReadError, match=f"is {w}x{h - 1} but its CameraInfo says {w}x{h}") as e:
+        list(logs.messages(logs.select(), fast=True))
     if binning != (0, 0):
         assert f"64x48 with binning {binning[0]}x{binning[1]}" in str(e.value)
 

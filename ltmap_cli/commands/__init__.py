@@ -120,7 +120,8 @@ class StatusLine:
             self._open = False
 
 
-def sensor_options(cfg, fixed_frame=None, tf_mounts=(), scan_topics=(), cloud_topics=(), depth_topics=()) -> None:
+def sensor_options(cfg, fixed_frame=None, tf_mounts=(), scan_topics=(), cloud_topics=(), depth_topics=(),
+                   camera_infos=()) -> None:
     """Replay's options that choose sensors and frames, applied to ``cfg`` (after its --config
     file, before --set: replay's order), for replay and for info (which says what replay would use)."""
     rc = cfg.replay
@@ -128,6 +129,8 @@ def sensor_options(cfg, fixed_frame=None, tf_mounts=(), scan_topics=(), cloud_to
         rc.fixed_frame = fixed_frame
     if tf_mounts:
         rc.tf = [*rc.tf, *tf_mounts]
+    if camera_infos:
+        rc.camera_info = [*rc.camera_info, *map(str, camera_infos)]
     for key, value in (("scan_topics", scan_topics), ("cloud_topics", cloud_topics), ("depth_topics", depth_topics)):
         if value:
             setattr(rc, key, list(value))

@@ -26,6 +26,7 @@ from ..core.config import MapConfig
 from ..errors import LogReadError, TransformError
 from ..io import decode as dec
 from ..io import rectify
+from ..io.camera_file import load_camera_infos
 from ..io.logs import IMAGE, TruncatedLogError, open_logs
 from ..io.transforms import TfBuffer, choose_base_frame
 from . import allow_open_files, clock, sensor_options
@@ -91,6 +92,7 @@ def gather(
     allow_truncated: bool = False,
     base_frame: str | None = None,
     full: bool = False,
+    camera_infos=(),
 ) -> dict:
     """Everything `info` shows, as a dict (also used by tests and ``--json``). Raises like the
     readers. ``base_frame``: ``map.robot.base_frame`` (default: its default). Logs of more than
@@ -102,7 +104,8 @@ def gather(
     with open_logs(paths, allow_truncated=True) as logs:
         head_ns = None if not head or logs.start_ns is None else logs.start_ns + int(INFO_HEAD_S * NS)
         read_to: int | None = None  # head_ns, when reading stopped there
-        sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False)
+        sel = logs.select(scan_topics, cloud_topics, depth_topics, require_sensor=False,
+                          given_info=load_camera_infos(camera_infos))  # fmt: skip
         buf = TfBuffer(window_ns=10 * 10**9)
         for spec in tf_mounts:
             buf.add_mount(spec)
@@ -125,7 +128,7 @@ def gather(
         # it, in log time), from the tf it has by then: the frames at that point, as replay sees them
         used_sensors = set(sel.sensor_topics)
         infos = set(sel.depths.values())  # CameraInfo topics: their first message tells the lens
-        info_first: dict[str, object] = {}
+        info_first: dict[str, object] = dict(sel.given_info)
         wait_ns = int(ReplayConfig().tf_wait * NS)
         release_ns: int | None = None
         early: set[str] | None = None
@@ -424,6 +427,8 @@ def render(r: dict) -> str:
     metavar="PARENT:CHILD=x,y,z,roll,pitch,yaw",
     help="A sensor mount missing from the log (repeatable).",
 )
+@click.option("--camera-info", "camera_infos", multiple=True, metavar="[TOPIC=]FILE",
+              help="A depth camera's calibration YAML, as replay's --camera-info (repeatable).")
 @click.option("--fixed-frame", default="", help="Fixed frame (default: map if tf has it, else odom).")
 @click.option("--config", "config_file", type=click.Path(path_type=Path),
               help="The parameters replay would be given (a YAML file, as replay's --config): its topics, mounts, "
@@ -435,21 +440,21 @@ def render(r: dict) -> str:
 @click.option("--full", is_flag=True, help=f"Read every message of logs over {INFO_FULL_BYTES >> 30} GiB too (by "
               f"default their first {INFO_HEAD_S:g} s of log time, counts from the index).")
 def info(
-    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, fixed_frame, config_file, overrides,
-    allow_truncated, as_json, full,
+    logs: tuple[Path, ...], scan_topics, cloud_topics, depth_topics, tf_mounts, camera_infos, fixed_frame, config_file,
+    overrides, allow_truncated, as_json, full,
 ) -> None:
     """Show what LOG(s) hold: topics, types, counts, duration, rates, the tf tree, which topics
     `ltmap replay` would use, the fixed and base frames it would use, and warnings for what it
     would skip and why. With replay's --config / --set, what replay would use with them."""
     cfg = load_config(config_file)  # in replay's order: the file, the options, then --set
-    sensor_options(cfg, fixed_frame or None, tf_mounts, scan_topics, cloud_topics, depth_topics)
+    sensor_options(cfg, fixed_frame or None, tf_mounts, scan_topics, cloud_topics, depth_topics, camera_infos)
     for key, value in parse_set(overrides):
         set_dotted(cfg, key, value)
     cfg.validate()
     rc = cfg.replay
     allow_open_files(logs)
     r = gather(list(logs), rc.scan_topics, rc.cloud_topics, rc.depth_topics, rc.tf, rc.fixed_frame, allow_truncated,
-               base_frame=cfg.map.robot.base_frame, full=full)  # fmt: skip
+               base_frame=cfg.map.robot.base_frame, full=full, camera_infos=rc.camera_info)  # fmt: skip
     if as_json:
 
         click.echo(json.dumps({k: (str(v) if k == "error" else v) for k, v in r.items()}, indent=2))

@@ -132,6 +132,10 @@ def _xy(text: str, flag: str) -> list[float]:
 @click.option("--fixed-frame", help="Fixed frame (default: map when tf has it, else odom).")
 @click.option("--tf", "tf_mounts", multiple=True, metavar="PARENT:CHILD=x,y,z,roll,pitch,yaw",
               help="Add a transform the log lacks (metres, radians). Repeatable.")
+@click.option("--camera-info", "camera_infos", multiple=True, metavar="[TOPIC=]FILE",
+              help="A depth camera's calibration YAML (camera_calibration's file, or a CameraInfo saved from "
+              "`ros2 topic echo --once`) for depth images recorded without their CameraInfo; with TOPIC, for that "
+              "depth topic instead of its logged one. Repeatable.")
 @click.option("--scan-topic", multiple=True, help="LaserScan topic to use (repeatable; default: all).")
 @click.option("--cloud-topic", multiple=True, help="PointCloud2 topic to use (repeatable; default: all).")
 @click.option("--depth-topic", multiple=True, help="Depth image topic to use: an Image, or image_transport's "
@@ -163,7 +167,8 @@ def _xy(text: str, flag: str) -> list[float]:
 @click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
               help="Set any parameter by its config name, e.g. --set map.layers.st_rise_s=10.")
 @click.option("-q", "--quiet", is_flag=True, help="No progress bar.")
-def replay(logs, output, force, static, resume, config_file, dump_config, fixed_frame, tf_mounts, scan_topic, cloud_topic,
+def replay(logs, output, force, static, resume, config_file, dump_config, fixed_frame, tf_mounts, camera_infos,
+           scan_topic, cloud_topic,
            depth_topic, start_s, end_s, resolution, tick, snapshot_every, mode, allow_truncated, plan_goal, robot_radius, mcap_out,
            map_period, no_plots, depth_outlier_filter, localize, overrides, quiet):
     """Replay LOGS (ROS 1 .bag, ROS 2 bag folders, .mcap) at their recorded time through the
@@ -189,7 +194,7 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     for key, value in flags.items():
         if value is not None:
             set_dotted(cfg, key, value)
-    sensor_options(cfg, fixed_frame, tf_mounts, scan_topic, cloud_topic, depth_topic)
+    sensor_options(cfg, fixed_frame, tf_mounts, scan_topic, cloud_topic, depth_topic, camera_infos)
     if allow_truncated:
         cfg.replay.allow_truncated = True
     for key, value in parse_set(overrides):

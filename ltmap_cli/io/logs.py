@@ -66,6 +66,7 @@ from ..errors import InputError, LogReadError, LtmapWarning, bounded, first_line
 from . import decode as dec
 from . import realsense
 from .bounded import DEFAULT_MAX_MESSAGE_MB
+from .camera_file import OPTION as CAMERA_OPTION
 from .frames import CloudFrame, DepthFrame, OdometrySample, ReadStats, ScanFrame, TfSample
 from .skip import SkipBefore
 from .sources import Source, TopicInfo, normalize_type, open_source
@@ -105,6 +106,7 @@ class TopicSelection:
     clouds: list[str] = field(default_factory=list)
     depths: dict[str, str] = field(default_factory=dict)  # depth image topic -> its CameraInfo topic
     depth_units: dict[str, str] = field(default_factory=dict)  # depth image topic -> its Depth Units topic
+    given_info: dict[str, Any] = field(default_factory=dict)  # a depths value that is a --camera-info file: its CameraInfo
     tf: list[str] = field(default_factory=list)
     static_tf: list[str] = field(default_factory=list)  # subset of tf
     odometry: list[str] = field(default_factory=list)
@@ -117,7 +119,8 @@ class TopicSelection:
     @property
     def topics(self) -> set[str]:
         """Every topic to read (sensors, their CameraInfo, tf and odometry)."""
-        return {*self.sensor_topics, *self.depths.values(), *self.depth_units.values(), *self.tf, *self.odometry}
+        infos = {i for i in self.depths.values() if i not in self.given_info}
+        return {*self.sensor_topics, *infos, *self.depth_units.values(), *self.tf, *self.odometry}
 
 
 def _listing(topics: Mapping[str, TopicInfo]) -> str:
@@ -145,8 +148,12 @@ def _camera_info_for(image_topic: str, topics: Mapping[str, TopicInfo]) -> str |
 
 def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_topics: Sequence[str] = (),
                   cloud_topics: Sequence[str] = (), depth_topics: Sequence[str] = (), *,
-                  require_sensor: bool = True, source: str = "the log") -> TopicSelection:
-    """Choose the topics a replay uses (see the module doc). ``source`` names the log(s) in errors."""
+                  require_sensor: bool = True, source: str = "the log",
+                  given_info: Mapping[str, Any] | None = None) -> TopicSelection:
+    """Choose the topics a replay uses (see the module doc). ``source`` names the log(s) in errors.
+    ``given_info`` (``io.camera_file.load_camera_infos``): CameraInfos from files, by depth topic
+    (used instead of the log's), "" for every depth topic that has none in the log."""
+    given_info = dict(given_info or {})
     if not isinstance(topics, Mapping):
         topics = {t.name: t for t in topics}
     sel = TopicSelection()
@@ -212,20 +219,31 @@ def select_topics(topics: Mapping[str, TopicInfo] | Iterable[TopicInfo], scan_to
                                        + (f" (image_transport's {transport} transport)" if transport else "")
                                        + "; to use this topic instead, choose it with --depth-topic")
                 continue
-            info = _camera_info_for(t.name, topics)
+            given = given_info.get(t.name, given_info.get(base))
+            info = None if given is not None else _camera_info_for(t.name, topics)
+            if info is None and given is None:
+                given = given_info.get("")
+            if given is not None:
+                info = f"{given.source} ({CAMERA_OPTION})"
+                sel.given_info[info] = given
             if info is None:
                 why = (f"depth {what} without CameraInfo: no {base.rsplit('/', 1)[0]}/camera_info (nor a RealSense "
                        f".../info/camera_info) and not exactly one CameraInfo topic in {source}")
                 if picked:
                     raise InputError(f"--depth-topic {t.name}: {why}; a depth image cannot be placed "
-                                     f"without its camera intrinsics")
-                sel.skipped[t.name] = why
+                                     f"without its camera intrinsics: give them with {CAMERA_OPTION} FILE")
+                sel.skipped[t.name] = why + f" (give its intrinsics with {CAMERA_OPTION} FILE)"
                 continue
             sel.depths[t.name] = info
             units = realsense.depth_units_topic(t.name, topics)
             if units is not None:
                 sel.depth_units[t.name] = units
 
+    images = {n for n, t in topics.items() if _SENSOR_KIND.get(t.msgtype) == IMAGE}
+    for name in given_info:
+        if name and name not in images and not any(image_base(n)[0] == name for n in images):
+            raise InputError(f"{CAMERA_OPTION} {name}=...: {source} has no depth image topic {name}; its image "
+                             f"topics: {bounded(sorted(images))}")  # fmt: skip
     if require_sensor and not sel.sensor_topics:
         raise InputError(f"no usable LaserScan, PointCloud2 or depth Image topic in {source}; its topics: "
                          f"{_listing(topics)}" + (f"; skipped: {bounded(f'{k}: {v}' for k, v in sel.skipped.items())}"
@@ -284,11 +302,12 @@ class LogSet:
         return out
 
     def select(self, scan_topics: Sequence[str] = (), cloud_topics: Sequence[str] = (),
-               depth_topics: Sequence[str] = (), *, require_sensor: bool = True) -> TopicSelection:
+               depth_topics: Sequence[str] = (), *, require_sensor: bool = True,
+               given_info: Mapping[str, Any] | None = None) -> TopicSelection:
         stops = [s.stopped_at for s in self.sources if s.stopped_at]
         try:
             sel = select_topics(self.topics, scan_topics, cloud_topics, depth_topics,
-                                require_sensor=require_sensor, source=self.name)
+                                require_sensor=require_sensor, source=self.name, given_info=given_info)
         except InputError:
             if stops:  # the damage is the real problem
                 raise TruncatedLogError(f"log is truncated or corrupt and has no usable sensor topic before "
@@ -407,7 +426,8 @@ class LogSet:
             kinds[image] = "depth"
             infos_wanted.setdefault(info, []).append(image)
         for info in infos_wanted:
-            kinds.setdefault(info, "info")
+            if info not in sel.given_info:  # (a --camera-info file: not read from the log)
+                kinds.setdefault(info, "info")
         for units_topic in sel.depth_units.values():
             kinds.setdefault(units_topic, "units")
         units: dict[str, float] = {}  # Depth Units topic -> metres per unit (RealSense SDK bags)
@@ -417,7 +437,7 @@ class LogSet:
         last_depth: dict[str, int] = {}
         static = set(sel.static_tf)
         latest_info: dict[str, Any] = {}  # topic -> (decode, where, parser) of its newest message
-        good_info: dict[str, Any] = {}  # topic -> its newest message that could be decoded
+        good_info: dict[str, Any] = dict(sel.given_info)  # topic -> its newest message that could be decoded
         lead_ns = start_ns - int(WINDOW_LEAD_S * 1e9) if start_ns is not None else None
         skip = None
         if lead_ns is not None:  # what an indexed MCAP need not read: what lies before the lead, but /tf_static,

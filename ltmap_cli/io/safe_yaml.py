@@ -111,8 +111,11 @@ def check_regular_file(path: Path, what: str, error: type[Exception], max_bytes:
     return int(st.st_size)
 
 
-def load_file(path: str | Path, what: str, error: type[Exception], max_bytes: int = MAX_YAML_BYTES) -> Any:
-    """Read and parse a YAML file: one line (``error``) naming the file and the fault."""
+def load_file(path: str | Path, what: str, error: type[Exception], max_bytes: int = MAX_YAML_BYTES,
+              trailing_separator: bool = False) -> Any:
+    """Read and parse a YAML file: one line (``error``) naming the file and the fault.
+    ``trailing_separator``: a document separator (``---`` / ``...``) on the last lines is dropped
+    (``ros2 topic echo`` ends each message with one)."""
     p = Path(path)
     check_regular_file(p, what, error, max_bytes)
     try:
@@ -121,6 +124,11 @@ def load_file(path: str | Path, what: str, error: type[Exception], max_bytes: in
         raise error(f"{p}: the {what} is not UTF-8 text; give a YAML file") from None
     except OSError as exc:
         raise error(f"{p}: cannot read the {what} ({exc.strerror or exc}); check the file") from None
+    if trailing_separator:
+        lines = text.rstrip().splitlines()
+        while lines and lines[-1].strip() in ("---", "..."):
+            lines.pop()
+        text = "\n".join(lines) + "\n"
     try:
         return loads(text)
     except YamlLimitError as exc:

@@ -29,6 +29,7 @@ from ..config import Config, dump_config
 from ..core.layers import LayeredMap, StaticGrid
 from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, TransformError, human
 from ..io.atomic import write_text_atomic
+from ..io.camera_file import load_camera_infos
 from ..io.decode import RawDepthFrame
 from ..io.frames import DepthFrame, OdometrySample, TfSample, frame_nbytes
 from ..io.logs import open_logs
@@ -267,7 +268,8 @@ class Replay:
         with open_logs(req.logs, allow_truncated=cfg.replay.allow_truncated,
                        max_message_mb=cfg.replay.max_message_mb) as logs:
             sel = logs.select(scan_topics=cfg.replay.scan_topics, cloud_topics=cfg.replay.cloud_topics,
-                              depth_topics=cfg.replay.depth_topics)  # fmt: skip
+                              depth_topics=cfg.replay.depth_topics,
+                              given_info=load_camera_infos(cfg.replay.camera_info))  # fmt: skip
             run.log_start_ns = logs.start_ns
             start_ns, end_ns = self._window(logs)
             self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
