@@ -127,7 +127,20 @@ def test_a_log_without_camera_info_maps_with_its_calibration_file(tmp_path):
     # info says where the intrinsics come from
     r = CliRunner().invoke(cli, ["info", str(bare), "--camera-info", str(tmp_path / "calibration.yaml")])
     assert r.exit_code == 0, r.output
-    assert f"(CameraInfo {tmp_path / 'calibration.yaml'} (--camera-info))" in r.output
+    assert f"(CameraInfo {tmp_path / 'calibration.yaml'} (--camera-info)), 32x24 fx 28.8 fy 30.1 cx 15.5 cy 11.25" \
+        in r.output  # fmt: skip
+
+
+def test_info_says_the_intrinsics_of_a_binned_camera(tmp_path):
+    """A 64 x 48 camera binned 2 x 2 (K halved by hand: fx 57.6 -> 28.8, cx 31 -> 15.5)."""
+    msgs = [tf(S // 2, [("map", "camera_optical", (0.0, 0.0, 1.0), (0.5, -0.5, 0.5, -0.5))], static=True),
+            camera_info("/cam/depth/camera_info", S, width=64, height=48, fx=57.6, fy=60.2, cx=31.0, cy=22.5,
+                        binning=(2, 2)),
+            image(TOPIC, S + 1, _depth(0))]  # fmt: skip
+    log = write_log(tmp_path / "binned.mcap", "mcap-ros2", msgs)
+    r = CliRunner().invoke(cli, ["info", str(log)])
+    assert r.exit_code == 0, r.output
+    assert "32x24 fx 28.8 fy 30.1 cx 15.5 cy 11.25 of 64x48 with binning 2x2" in r.output, r.output
 
 
 def test_a_topic_named_takes_the_file_instead_of_its_logged_camera_info(tmp_path):
