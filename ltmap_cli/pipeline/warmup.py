@@ -36,6 +36,7 @@ from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
 from ..core.projective import quiet_keys_in_box
 from ..core.sensors import transform_points
+from .executor import usable_cores
 
 CORE = Path(__file__).resolve().parent.parent / "core"
 
@@ -190,7 +191,7 @@ class BackgroundCompile:
 
     def __init__(self, groups):
         self.procs = []
-        for child in children_of(groups, len(os.sched_getaffinity(0))):
+        for child in children_of(groups, usable_cores()):  # (a container's CPU quota counts)
             self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, *child], stdin=subprocess.DEVNULL,
                                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
 
