@@ -266,7 +266,7 @@ def test_info_says_what_replay_does_with_compressed_depth(tmp_path):
     assert r.exit_code == 0, r.output
     row = next(ln for ln in r.stdout.splitlines() if ln.startswith(f"{TOPIC}/compressedDepth "))
     assert row.endswith("uses: depth, frame camera_optical (CameraInfo /cam/depth/camera_info), "
-                        "16UC1; compressedDepth rvl"), row  # fmt: skip
+                        "32x24 fx 28.8 fy 28.8 cx 15.5 cy 11.5, 16UC1; compressedDepth rvl"), row  # fmt: skip
     msgs = [tf(S // 2, [("map", "camera_optical")], static=True),
             camera_info("/cam/depth/camera_info", S, width=32, height=24, fx=30, fy=30, cx=15.5, cy=11.5),
             compressed_depth(f"{TOPIC}/compressed", S + 1, frames[0], codec="jpeg")]

@@ -121,7 +121,8 @@ def test_info_says_the_lens_is_rectified(tmp_path):
     r = CliRunner().invoke(cli, ["info", str(log)])
     assert r.exit_code == 0, r.output
     row = next(ln for ln in r.stdout.splitlines() if ln.startswith("/cam/depth/image_raw "))
-    assert row.endswith("(CameraInfo /cam/depth/camera_info), lens plumb_bob rectified to pinhole"), row
+    assert row.endswith(f"(CameraInfo /cam/depth/camera_info), {W}x{H} fx {F:g} fy {F:g} cx {CX:g} cy {CY:g}, "
+                        "lens plumb_bob rectified to pinhole"), row  # fmt: skip
     log = _log(tmp_path, "mcap-ros2", recorded_wall(), (0.5,), model="fov", name="fov")
     r = CliRunner().invoke(cli, ["info", str(log)])
     said = "CameraInfo for depth on /cam/depth/image_raw, message index 0 in " + str(log) + " has distortion " \
