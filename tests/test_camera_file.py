@@ -152,9 +152,10 @@ def test_a_topic_named_takes_the_file_instead_of_its_logged_camera_info(tmp_path
     r, out = _replay(tmp_path, wrong, "unqualified", "--camera-info", str(calib))
     assert r.exit_code == 0, r.output  # a file for every topic: only where the log has none
     assert not np.array_equal(_state(out)["O_logodds"], _state(ref_out)["O_logodds"])  # the log's fx
-    r, out = _replay(tmp_path, wrong, "named", "--camera-info", f"{TOPIC}={calib}")
-    assert r.exit_code == 0, r.output
-    _same_map(ref_out, out)
+    for spec in (f"{TOPIC}={calib}", f"{TOPIC.lstrip('/')}={calib}"):  # (with or without its leading slash)
+        r, out = _replay(tmp_path, wrong, f"named{len(spec)}", "--camera-info", spec)
+        assert r.exit_code == 0, r.output
+        _same_map(ref_out, out)
 
 
 @pytest.mark.parametrize("content, spec, words", [

@@ -34,11 +34,11 @@ def parse_spec(spec: str) -> tuple[str, Path]:
     """``[TOPIC=]FILE`` -> (the depth topic it is for, "" for every depth topic without a
     CameraInfo; the file)."""
     topic, sep, path = spec.partition("=")
-    if not sep:
+    if not sep or Path(spec).is_file():  # (a file whose name holds "=")
         topic, path = "", spec
     topic = topic.strip()
-    if sep and not topic.startswith("/"):  # (a file name with "=" in it, not a topic)
-        topic, path = "", spec
+    if topic and not topic.startswith("/"):  # (topics are read with their leading slash)
+        topic = "/" + topic
     if not path.strip():
         raise InputError(f"{OPTION} {spec}: no file given; give a camera calibration YAML, as "
                          f"{OPTION} FILE or {OPTION} /camera/depth/image_raw=FILE")  # fmt: skip
