@@ -172,6 +172,8 @@ def _first_run_groups(tmp_path, monkeypatch, name, msgs):
     started = []
 
     class Recorded:
+        waiting = False  # (no other run compiling)
+
         def __init__(self, groups):
             started.append(list(groups))
 
@@ -220,3 +222,47 @@ def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path,
     scans = [m for m in depth_msgs("16UC1") if m.topic == "/scan"]
     got = _first_run_groups(tmp_path, monkeypatch, "scans", place + scans)
     assert got == [base]
+
+
+def test_a_first_run_waits_for_another_ones_compiling_instead_of_compiling_beside_it(tmp_path, monkeypatch):
+    """Two first runs on one machine (a fleet batch's workers): while one's children compile into
+    the cache (it holds the cache's compile lock), the other starts none and waits for it; the
+    lock is released when the children end or are stopped, and by the OS if the run dies."""
+    import threading
+    import time
+
+    from ltmap_cli.pipeline import warmup
+    from ltmap_cli.pipeline.warmup import BackgroundCompile, CompileLock
+
+    spawned = []
+
+    class Child:  # a child that has ended
+        def __init__(self, args, **kw):
+            spawned.append(args[3:])
+
+        def poll(self):
+            return 0
+
+        def kill(self):
+            pass
+
+        def wait(self):
+            return 0
+
+    monkeypatch.setattr(warmup.subprocess, "Popen", Child)
+    first = BackgroundCompile(["rays", "maps"], folder=tmp_path)  # a first run: compiles, holds the lock
+    assert not first.waiting and spawned == [["rays"], ["maps"]]
+    second = BackgroundCompile(["rays", "maps"], folder=tmp_path)  # another, meanwhile: waits
+    assert second.waiting and len(spawned) == 2
+    threading.Timer(0.4, first.wait).start()  # the first's children end 0.4 s from now
+    t0 = time.monotonic()
+    second.wait()
+    assert time.monotonic() - t0 >= 0.35 and not second.waiting
+    assert CompileLock(tmp_path).try_acquire() is True  # released (and taken here: a third would wait)
+    third = BackgroundCompile(["rays"], folder=tmp_path)
+    assert third.waiting
+    monkeypatch.undo()  # (subprocess.Popen is the module's: the real one again)
+    # a run that dies holding it: the OS releases it
+    code = f"from ltmap_cli.pipeline.warmup import CompileLock; import os; CompileLock(__import__('pathlib').Path({str(tmp_path / 'd')!r})).try_acquire(); os._exit(0)"
+    subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert CompileLock(tmp_path / "d").try_acquire() is True

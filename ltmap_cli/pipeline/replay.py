@@ -549,7 +549,8 @@ class Replay:
             self._start_compile(None)
         with self.timer("warmup"):
             if self._compile is not None:
-                self._report_progress(None, force=True, phase=COMPILING)
+                self._report_progress(None, force=True, phase=COMPILING + (
+                    ": waiting for another ltmap's compiling" if self._compile.waiting else ""))
                 t0 = time.perf_counter()
                 self._compile.wait(lambda ended, total: self._report_progress(
                     None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))

@@ -22,6 +22,7 @@ are in two. The depth groups leave the voxels rays pass to ``rays``, which every
 
 from __future__ import annotations
 
+import fcntl
 import os
 import subprocess
 import sys
@@ -146,12 +147,17 @@ def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
         GROUPS[g](cfg)
 
 
+def cache_folder() -> Path:
+    """Where numba caches the map's kernels: ``NUMBA_CACHE_DIR``, else beside the modules."""
+    root = os.environ.get("NUMBA_CACHE_DIR")
+    return Path(root) if root else CORE / "__pycache__"
+
+
 def kernels_cached() -> bool:
     """Whether numba's disk cache holds the map's kernels (else the first run compiles them):
     numba keeps an index file (``*.nbi``) per cached function, beside the module or under
     ``NUMBA_CACHE_DIR``."""
-    root = os.environ.get("NUMBA_CACHE_DIR")
-    folder = Path(root) if root else CORE / "__pycache__"
+    folder = cache_folder()
     if not folder.is_dir():
         return False
     newest = max((f.stat().st_mtime for f in folder.rglob("*.nbi")), default=None)
@@ -184,20 +190,81 @@ def children_of(groups, cores: int) -> list[list[str]]:
     return children
 
 
+COMPILE_LOCK = ".ltmap-compile.lock"  # in the cache folder: one first run's compiling at a time
+
+
+class CompileLock:
+    """An exclusive ``flock`` on ``COMPILE_LOCK`` in the kernels' cache folder, held while a first
+    run's children compile into it (released by the OS if that run is killed)."""
+
+    def __init__(self, folder: Path | None = None):
+        self.path = (folder if folder is not None else cache_folder()) / COMPILE_LOCK
+        self.fd: int | None = None
+
+    def try_acquire(self) -> bool | None:
+        """True: ours now; False: another process holds it; None: no lock here (a read-only
+        install: nothing to coordinate)."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            return None
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            return False
+        except OSError:
+            os.close(fd)
+            return None
+        self.fd = fd
+        return True
+
+    def wait_released(self) -> None:
+        """Until the process that holds it releases it."""
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError:
+            return
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError:
+            pass
+        finally:
+            os.close(fd)  # (closing releases it)
+
+    def release(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+            self.fd = None
+
+
 class BackgroundCompile:
     """Child processes that compile kernel groups into numba's cache, started at once
     (``children_of`` this machine's cores); ``wait()`` before calling the kernels, ``stop()``
-    when the run ends early."""
+    when the run ends early. When another ltmap is compiling into the same cache (two first runs
+    at once: a fleet batch's workers on one machine), none are started (``waiting``): ``wait()``
+    waits for that one instead of compiling the same kernels again beside it, and the run loads
+    what it compiled (and compiles what it did not, in its own process)."""
 
-    def __init__(self, groups):
+    def __init__(self, groups, folder: Path | None = None):
         self.procs = []
+        self.lock = CompileLock(folder)
+        self.waiting = self.lock.try_acquire() is False
+        if self.waiting:
+            return
         for child in children_of(groups, usable_cores()):  # (a container's CPU quota counts)
             self.procs.append(subprocess.Popen([sys.executable, "-m", __name__, *child], stdin=subprocess.DEVNULL,
                                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))  # fmt: skip
 
     def wait(self, on_done=None, poll_s: float = 0.2) -> None:
         """Until every child has ended; ``on_done(ended, total)`` each time one more has (a first
-        run's half minute of compiling says that it moves)."""
+        run's half minute of compiling says that it moves). ``waiting``: until the other run's
+        compiling has ended."""
+        if self.waiting:
+            self.lock.wait_released()
+            self.waiting = False
+            return
         total, ended = len(self.procs), 0
         while ended < total:
             now = sum(p.poll() is not None for p in self.procs)
@@ -208,12 +275,14 @@ class BackgroundCompile:
             if on_done is not None:
                 on_done(ended, total)
         self.procs = []
+        self.lock.release()
 
     def stop(self) -> None:
         for p in self.procs:
             p.kill()
             p.wait()
         self.procs = []
+        self.lock.release()
 
 
 if __name__ == "__main__":  # a BackgroundCompile child: python -m ltmap_cli.pipeline.warmup GROUP [GROUP ...]
