@@ -266,3 +266,17 @@ def test_a_first_run_waits_for_another_ones_compiling_instead_of_compiling_besid
     code = f"from ltmap_cli.pipeline.warmup import CompileLock; import os; CompileLock(__import__('pathlib').Path({str(tmp_path / 'd')!r})).try_acquire(); os._exit(0)"
     subprocess.run([sys.executable, "-c", code], check=True, env={**os.environ, "PYTHONPATH": str(ROOT)})
     assert CompileLock(tmp_path / "d").try_acquire() is True
+
+
+def test_kernels_cached_looks_where_numba_caches_them(tmp_path):
+    """With a NUMBA_CACHE_DIR that other projects share, only ltmap's own folder in it counts:
+    another project's newer kernels there do not make a first run skip its compiling children
+    (which then compiled in the main process, in the middle of mapping)."""
+    (tmp_path / "other_project").mkdir()
+    (tmp_path / "other_project" / "kernel-1.py311.nbi").write_bytes(b"")
+    code = ("from ltmap_cli.pipeline.warmup import cache_folder, kernels_cached; "
+            "print(kernels_cached(), cache_folder())")  # fmt: skip
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "NUMBA_CACHE_DIR": str(tmp_path)}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
+    cached, folder = out.stdout.split()
+    assert cached == "False" and Path(folder).parent == tmp_path and Path(folder).name.startswith("core_")

@@ -148,19 +148,27 @@ def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
 
 
 def cache_folder() -> Path:
-    """Where numba caches the map's kernels: ``NUMBA_CACHE_DIR``, else beside the modules."""
+    """Where numba caches the map's kernels, as numba itself chose when it loaded them: a folder
+    of its own under ``NUMBA_CACHE_DIR``, else the modules' ``__pycache__``, else (an install the
+    user cannot write) a user-wide folder. (Read from a kernel's cache; the first two when that
+    is not there.)"""
+    from ..core import raycast
+
+    path = getattr(getattr(raycast.frame_voxels, "_cache", None), "_cache_path", None)
+    if path:
+        return Path(path)
     root = os.environ.get("NUMBA_CACHE_DIR")
     return Path(root) if root else CORE / "__pycache__"
 
 
 def kernels_cached() -> bool:
     """Whether numba's disk cache holds the map's kernels (else the first run compiles them):
-    numba keeps an index file (``*.nbi``) per cached function, beside the module or under
-    ``NUMBA_CACHE_DIR``."""
+    numba keeps an index file (``*.nbi``) per cached function in ``cache_folder()`` (only
+    there: another project's newer kernels in a shared ``NUMBA_CACHE_DIR`` do not count)."""
     folder = cache_folder()
     if not folder.is_dir():
         return False
-    newest = max((f.stat().st_mtime for f in folder.rglob("*.nbi")), default=None)
+    newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None)
     # an index older than the source is stale: numba compiles the kernels again
     return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
 
