@@ -232,11 +232,9 @@ def gather(
                 with contextlib.suppress(Exception):  # (a damaged CameraInfo: replay's own checks say it)
                     c = dec.intrinsics(cam) if cam is not None else None
                     if c is not None and c.width and c.height:  # the images it describes: binning and ROI applied
-                        bx, by, roi = dec.binning_roi(cam)
-                        how = f" of {int(cam.width)}x{int(cam.height)} with binning {bx}x{by}" + (
-                            f" and ROI {roi[2]}x{roi[3]} at ({roi[0]}, {roi[1]})" if roi else "") \
-                            if bx > 1 or by > 1 or roi else ""  # fmt: skip
-                        used[topic] += f", {c.width}x{c.height} fx {c.fx:.6g} fy {c.fy:.6g} cx {c.cx:.6g} cy {c.cy:.6g}{how}"
+                        full = dec.full_camera(cam)
+                        used[topic] += (f", {c.width}x{c.height} fx {c.fx:.6g} fy {c.fy:.6g} cx {c.cx:.6g} cy {c.cy:.6g}"
+                                        + (f" of {full}" if full else ""))  # fmt: skip
                 lens = rectify.distortion(cam) if cam is not None else None
                 if lens is not None:
                     try:  # replay's own check (io.rectify), on one point

@@ -136,6 +136,16 @@ def binning_roi(info: Any) -> tuple[int, int, tuple[int, int, int, int] | None]:
     return bx, by, (None if box == (0, 0, 0, 0) else box)
 
 
+def full_camera(info: Any) -> str:
+    """What a CameraInfo with binning or a ROI describes before them, for messages (e.g.
+    ``64x48 with binning 2x2 and ROI 32x24 at (8, 4)``); "" without either."""
+    bx, by, roi = binning_roi(info)
+    if bx == 1 and by == 1 and roi is None:
+        return ""
+    crop = f" and ROI {roi[2]}x{roi[3]} at ({roi[0]}, {roi[1]})" if roi else ""
+    return f"{int(info.width)}x{int(info.height)} with binning {bx}x{by}{crop}"
+
+
 def intrinsics(info: Any) -> CameraIntrinsics:
     """CameraIntrinsics of the images a CameraInfo describes (ROS 1 ``K`` or ROS 2 ``k``), with its
     binning and region of interest applied as image_geometry's PinholeCameraModel applies them:
@@ -194,9 +204,8 @@ def _checked_intrinsics(info: Any, shape: tuple[int, int], where: str) -> Camera
     if (intr.width, intr.height) == (0, 0):
         intr = CameraIntrinsics(w, h, intr.fx, intr.fy, intr.cx, intr.cy)
     elif (intr.width, intr.height) != (w, h):
-        bx, by, roi = binning_roi(info)
-        how = (f" ({int(info.width)}x{int(info.height)} with binning {bx}x{by}"
-               f"{f' and ROI {roi[2]}x{roi[3]} at ({roi[0]}, {roi[1]})' if roi else ''})") if bx > 1 or by > 1 or roi else ""
+        full = full_camera(info)
+        how = f" ({full})" if full else ""
         raise LogReadError(f"depth Image {where} is {w}x{h} but its CameraInfo says "
                            f"{intr.width}x{intr.height}{how}; pair it with the right camera_info topic")
     if not (0 < intr.fx < np.inf and 0 < intr.fy < np.inf):  # (NaN fails too)

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..core import raycast
 from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap
@@ -152,8 +153,6 @@ def cache_folder() -> Path:
     of its own under ``NUMBA_CACHE_DIR``, else the modules' ``__pycache__``, else (an install the
     user cannot write) a user-wide folder. (Read from a kernel's cache; the first two when that
     is not there.)"""
-    from ..core import raycast
-
     path = getattr(getattr(raycast.frame_voxels, "_cache", None), "_cache_path", None)
     if path:
         return Path(path)
