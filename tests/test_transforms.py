@@ -245,3 +245,21 @@ def test_unit_quaternion_is_numpys_norm_bit_for_bit():
     for _ in range(20000):
         q = rng.normal(size=4) * rng.uniform(1e-3, 1e3)
         assert _unit(q).tobytes() == (q / np.linalg.norm(q)).tobytes()
+
+
+def test_a_cached_path_follows_tf_reparenting_a_frame_and_one_edge_lookups_are_the_callers():
+    """The per-pair path cache (which edges lead from each frame to their common frame) is dropped
+    when tf itself re-parents a frame, and a lookup over a single edge returns the caller's own
+    matrix, not the edge's cached one."""
+    b = TfBuffer()
+    b.add(TfSample(0, "odom", "base_link", (1.0, 0.0, 0.0), yaw_q(0.0)))
+    b.add(TfSample(0, "base_link", "cam", (0.5, 0.0, 0.0), yaw_q(0.0)))
+    np.testing.assert_allclose(b.lookup("odom", "cam", 0)[:3, 3], [1.5, 0.0, 0.0], atol=1e-12)
+    b.add(TfSample(S, "odom", "cam", (0.0, 2.0, 0.0), yaw_q(0.0)))  # the same source re-parents cam
+    np.testing.assert_allclose(b.lookup("odom", "cam", S)[:3, 3], [0.0, 2.0, 0.0], atol=1e-12)
+    one = b.lookup("odom", "base_link", 0)  # one edge up, then one edge down
+    one[0, 3] = 9.0
+    assert b.lookup("odom", "base_link", 0)[0, 3] == 1.0
+    back = b.lookup("base_link", "odom", 0)
+    back[0, 3] = 9.0
+    assert b.lookup("base_link", "odom", 0)[0, 3] == -1.0

@@ -161,6 +161,9 @@ class TfBuffer:
         # frame and the robot pose at the same stamp share their timed edges; static edges are
         # computed once.
         self._chains: dict[str, tuple[str, ...]] = {}
+        # per (target, source): the edges (their children) from the source and from the target up
+        # to their common frame; cleared with _chains whenever an edge is added or re-parented
+        self._paths: dict[tuple[str, str], tuple[tuple[str, ...], tuple[str, ...]]] = {}
         self._edge_m: dict[str, tuple[int, np.ndarray]] = {}
 
     # ------------------------------------------------------------------ filling
@@ -186,6 +189,7 @@ class TfBuffer:
         s = parse_mount(spec)
         self.edges.pop(s.child, None)
         self._chains.clear()
+        self._paths.clear()
         self._edge_m.pop(s.child, None)
         self._add(s.parent, s.child, 0, s.translation, s.rotation_xyzw, "mount")
         return s
@@ -212,6 +216,7 @@ class TfBuffer:
         if edge is None:
             edge = self.edges[child] = _Edge(parent, source)
             self._chains.clear()
+            self._paths.clear()
         value = np.array([*t, *q], dtype=np.float64)
         edge.count += 1
         if edge.timeless:
@@ -299,24 +304,38 @@ class TfBuffer:
         target, source = norm(target_frame), norm(source_frame)
         if target == source:
             return np.eye(4)
+        path_s, path_t = self._paths.get((target, source)) or self._path(target, source)
+        m_source = None  # the edges' product from the source up to the common frame
+        for child in path_s:
+            m = self._edge_matrix(child, stamp_ns)
+            m_source = m if m_source is None else m @ m_source
+        m_target = None
+        for child in path_t:
+            m = self._edge_matrix(child, stamp_ns)
+            m_target = m if m_target is None else m @ m_target
+        if m_target is None:  # (the source's frame is under the target's; a copy: edge matrices are shared)
+            return np.array(m_source)
+        if m_source is None:
+            return invert(m_target)
+        return invert(m_target) @ m_source
+
+    def _path(self, target: str, source: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        """The children of the edges from ``source`` and from ``target`` up to their common frame
+        (cached in ``_paths``); LookupFailure when a frame is unknown or no tf connects them."""
         frames = self.frames
         for f in (source, target):
             if f not in frames:
                 raise LookupFailure(self._missing_reason(target, source, f))
         up_s, up_t = self._chain(source), self._chain(target)
-        common = next((f for f in up_s if f in set(up_t)), None)
+        in_t = set(up_t)
+        common = next((f for f in up_s if f in in_t), None)
         if common is None:
             raise LookupFailure(
                 f"no transform {target} -> {source}: {source} is under {up_s[-1]} and {target} under "
                 f"{up_t[-1]}, and no tf connects them; give the missing edge with "
                 f"--tf {up_t[-1] if up_t[-1] != target else target}:{up_s[-1]}=x,y,z,roll,pitch,yaw")
-        m_common_source = np.eye(4)
-        for child in up_s[: up_s.index(common)]:
-            m_common_source = self._edge_matrix(child, stamp_ns) @ m_common_source
-        m_common_target = np.eye(4)
-        for child in up_t[: up_t.index(common)]:
-            m_common_target = self._edge_matrix(child, stamp_ns) @ m_common_target
-        return invert(m_common_target) @ m_common_source
+        self._paths[(target, source)] = out = (up_s[: up_s.index(common)], up_t[: up_t.index(common)])
+        return out
 
     def _missing_reason(self, target: str, source: str, missing: str) -> str:
         frames = self.frames
