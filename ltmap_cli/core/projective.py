@@ -361,16 +361,30 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
                         rim = r > 0.0 and r * r > d2
                 else:  # outside the image: its rim too, unless within half a voxel of it
                     rim = uf >= -su and uf < w + su and vf >= -sv and vf < h + sv
-                if not free and rim:  # partly seen past an occluding edge?
-                    for q in range(8):
-                        du = su * (-1.0 if q == 0 or q == 3 or q == 5 else (1.0 if q == 2 or q == 4 or q == 7 else 0.0))
-                        dv = sv * (-1.0 if q < 3 else (1.0 if q > 4 else 0.0))
-                        ug, vg = uf + du, vf + dv
-                        if ug >= 0.0 and ug < w and vg >= 0.0 and vg < h:
-                            r = np.float64(reach[np.int64(vg), np.int64(ug)])
+                if not free and rim:  # partly seen past an occluding edge? The 8 pixels at
+                    # centre +- (su, sv) and +- su, +- sv alone: their columns and rows once (-1:
+                    # outside the image), then each pixel's reach
+                    ua, ub, va, vb = uf - su, uf + su, vf - sv, vf + sv
+                    c0 = np.int64(ua) if ua >= 0.0 and ua < w else -1
+                    c1 = np.int64(uf) if uf >= 0.0 and uf < w else -1
+                    c2 = np.int64(ub) if ub >= 0.0 and ub < w else -1
+                    for rr in range(3):
+                        vg = va if rr == 0 else (vf if rr == 1 else vb)
+                        if not (vg >= 0.0 and vg < h):
+                            continue
+                        base = np.int64(vg) * w
+                        for cc in range(3):
+                            if rr == 1 and cc == 1:  # (the centre: tested above)
+                                continue
+                            col = c0 if cc == 0 else (c1 if cc == 1 else c2)
+                            if col < 0:
+                                continue
+                            r = np.float64(flat[base + col])
                             if r > 0.0 and r * r > d2:
                                 free = True
                                 break
+                        if free:
+                            break
             if free:
                 found = True
                 off = ((sa + (t >> 4)) << (2 * BLOCK_BITS)) | ((sc + ((t >> 2) & 3)) << BLOCK_BITS) | (se + (t & 3))
