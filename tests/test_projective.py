@@ -26,6 +26,7 @@ from ltmap_cli.config import Config
 from ltmap_cli.core.config import MapConfig
 from ltmap_cli.core.layers import LayeredMap
 from ltmap_cli.core.projection import project
+from ltmap_cli.core.projective import RIM
 
 ROOT = Path(__file__).resolve().parent.parent
 HOUSE = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
@@ -420,7 +421,7 @@ def _reference_misses(reach: np.ndarray, fx, fy, cx, cy, Tinv: np.ndarray, box: 
     states, voxel by voxel with numpy (no block or quarter bounds, no tiles): the voxel's centre
     in the optical frame, as the kernel computes it (block origin + offsets times a voxel step),
     with z > 0, is nearer than the reach of its pixel or of one of the 8 pixels at the rim of
-    its projection (centre +- half the voxel's projected size)."""
+    its projection (centre +- ``RIM`` voxel sizes, projected)."""
     h, w = reach.shape
     ii, jj, kk = np.meshgrid(*(np.arange(box[a] >> 3 << 3, (box[3 + a] >> 3 << 3) + 8) for a in range(3)), indexing="ij")
     ii, jj, kk = ii.ravel(), jj.ravel(), kk.ravel()
@@ -433,7 +434,7 @@ def _reference_misses(reach: np.ndarray, fx, fy, cx, cy, Tinv: np.ndarray, box: 
     with np.errstate(divide="ignore", invalid="ignore"):
         iz = 1.0 / z
         uf, vf = fx * x * iz + cx + 0.5, fy * y * iz + cy + 0.5
-        su, sv = 0.5 * res * fx * iz, 0.5 * res * fy * iz
+        su, sv = RIM * res * fx * iz, RIM * res * fy * iz
         free = np.zeros(len(d2), dtype=bool)
         for du, dv in [(0, 0), (-1, -1), (0, -1), (1, -1), (-1, 0), (1, 0), (-1, 1), (0, 1), (1, 1)]:
             ug, vg = uf + su * du, vf + sv * dv
