@@ -483,3 +483,32 @@ def test_projection_is_the_per_voxel_rule(seed):
     want = _reference_misses(reach, f, f, cx, cy, Tinv, proj.box, m.resolution)
     assert len(want) > 1000
     assert got == want, f"{len(got - want)} listed but not misses, {len(want - got)} misses not listed"
+
+
+@pytest.mark.parametrize("far_from, miss", [(22, True), (23, False)])
+def test_rim_pixels_stand_for_rays_through_the_voxel(far_from, miss):
+    """A voxel 1 m out face on (0.05 m: 5 pixels at f = 100), its centre on pixel 20's ray, in
+    front of a near occluder that covers pixels up to ``far_from`` - 1; beyond, the background.
+    Pixel 22's ray passes through the voxel (0.02 m off its centre line at 1 m, within its
+    0.025 m half width): a ray seen past the occluder crosses it, so it is a miss. Pixel 23's
+    passes outside it (0.029 to 0.031 m off over its depth): no ray to the background crosses
+    it, and it is not (the rim at +-0.5 voxel, rounded to a pixel, took pixel 23: a voxel under
+    a table top's far edge was cleared so)."""
+    from ltmap_cli.core.grid import pack_block, voxel_offset
+    from ltmap_cli.core.projective import depth_range_image, projective_blocks
+
+    res, f, band, k0 = 0.05, 100.0, 0.2, 1000
+    depth = np.full((41, 41), 600, dtype=np.uint16)  # the occluder, 0.6 m out
+    depth[:, far_from:] = 3000  # the background
+    t = np.array([0.5 * res, 0.5 * res, (k0 + 0.5) * res - 1.0])  # voxel (0, 0, k0)'s centre at (0, 0, 1)
+    Tinv = np.ascontiguousarray(np.hstack([np.eye(3), -t[:, None]]))
+    img, tmin, tmax, dil = depth_range_image(depth, True, f, f, 20.0, 20.0, 8.0, band)
+    box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
+    keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
+    none, skipped = np.empty(0, dtype=np.int64), np.empty(64, dtype=np.int64)
+    n, _, _ = projective_blocks(img, tmin, tmax, dil, f, f, 20.0, 20.0, Tinv, box, res, band, keys, masks, 0, none,
+                                skipped, 0)  # fmt: skip
+    blocks = {int(keys[q]): masks[q] for q in range(n)}
+    off = voxel_offset(0, 0, k0)
+    word = blocks.get(pack_block(0, 0, k0 >> 3), np.zeros(8, dtype=np.uint64))[off >> 6]
+    assert bool((int(word) >> (off & 63)) & 1) == miss
