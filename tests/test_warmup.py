@@ -280,3 +280,41 @@ def test_kernels_cached_looks_where_numba_caches_them(tmp_path):
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True)
     cached, folder = out.stdout.split()
     assert cached == "False" and Path(folder).parent == tmp_path and Path(folder).name.startswith("core_")
+
+
+def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
+    """numba keeps a hash of a module's source in its kernels' cache: a reinstall, a checkout or
+    a touch that leaves the text as it was keeps the cache good, and ``kernels_cached()`` says so
+    (it compared times before: every replay after a touch started compiling children with
+    nothing to compile, and waited for them); an edited module's cache is stale, and it says so."""
+    import shutil
+
+    pkg = tmp_path / "code" / "ltmap_cli"
+    shutil.copytree(ROOT / "ltmap_cli", pkg, ignore=shutil.ignore_patterns("__pycache__"))
+    env = {**os.environ, "PYTHONPATH": str(tmp_path / "code"), "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
+
+    def cached(compile_one: bool = False, compile_two: bool = False) -> bool:
+        code = ("import numpy as np\n"
+                "from ltmap_cli.pipeline.warmup import kernels_cached\n"
+                "from ltmap_cli.core import projective\n"
+                "print(kernels_cached(), projective.__file__)\n"
+                + ("projective.ends_box(np.zeros(3), np.ones((2, 3)), 20.0)\n" if compile_one or compile_two else "")
+                + ("projective.depth_range_image(np.ones((16, 16), np.uint16), True, 9.0, 9.0, 8.0, 8.0, 8.0, 0.2)\n"
+                   if compile_two else ""))  # fmt: skip
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
+                             cwd=tmp_path)  # (not the checkout's folder: -c imports from the working folder first)
+        assert out.stdout.split()[1] == str(pkg / "core" / "projective.py")
+        return out.stdout.split()[0] == "True"
+
+    assert not cached(compile_two=True)  # nothing cached yet; then three kernels compile and are cached
+    assert cached()
+    later = os.stat(pkg / "core" / "raycast.py").st_mtime + 3600
+    for f in (pkg / "core").glob("*.py"):
+        os.utime(f, (later, later))  # a reinstall of the same code: newer files, the same text
+    assert cached()
+    src = pkg / "core" / "projective.py"
+    src.write_text(src.read_text() + "\n# an edit\n")
+    assert not cached(compile_one=True)  # projective's kernels are stale: the first run compiles them again
+    # one of the module's kernels compiled for its new text is enough: the others (depth_range_image
+    # and its callee) keep their stale index until called, and are compiled then
+    assert cached()

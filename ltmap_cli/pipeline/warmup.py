@@ -160,16 +160,43 @@ def cache_folder() -> Path:
     return Path(root) if root else CORE / "__pycache__"
 
 
+def _core_kernels():
+    """The numba functions of ``ltmap_cli.core`` that keep a disk cache."""
+    import importlib
+    import pkgutil
+
+    from numba.core.registry import CPUDispatcher
+
+    pkg = importlib.import_module("ltmap_cli.core")
+    for info in pkgutil.iter_modules(pkg.__path__):
+        mod = importlib.import_module(f"ltmap_cli.core.{info.name}")
+        for obj in vars(mod).values():
+            if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__ and getattr(obj, "_cache", None) is not None:
+                yield obj
+
+
 def kernels_cached() -> bool:
-    """Whether numba's disk cache holds the map's kernels (else the first run compiles them):
-    numba keeps an index file (``*.nbi``) per cached function in ``cache_folder()`` (only
-    there: another project's newer kernels in a shared ``NUMBA_CACHE_DIR`` do not count)."""
-    folder = cache_folder()
-    if not folder.is_dir():
-        return False
-    newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None)
-    # an index older than the source is stale: numba compiles the kernels again
-    return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
+    """Whether numba's disk cache holds the map's kernels for the code as it is (else the first
+    run compiles them), as numba itself decides: a kernel's index (``*.nbi``, in
+    ``cache_folder()``) counts when it was written by the same numba for the same source text
+    (numba keeps a hash of the module's source in it, not the file's time). So a reinstall, a
+    checkout or a touch that leaves the source as it was keeps the cache (comparing times, every
+    replay after one started compiling children that had nothing to compile, and waited for
+    them), and an edited module's kernels are compiled again. Per core module, one index written
+    for its text is enough: a kernel called only from other kernels (or from Python only on a
+    rare path, a buffer's growth) keeps an index of an older text for as long as its callers'
+    are good, and a kernel never compiled has none."""
+    try:
+        fresh: dict[str, bool] = {}
+        for k in _core_kernels():
+            f = k._cache._cache_file
+            if os.path.exists(f._index_path):  # ({} from _load_index: another numba, or another text)
+                fresh[k.__module__] = fresh.get(k.__module__, False) or bool(f._load_index())
+        return bool(fresh) and all(fresh.values())
+    except (AttributeError, ImportError):  # numba's internals moved: compare times, as numba did once
+        folder = cache_folder()
+        newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None) if folder.is_dir() else None
+        return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
 
 
 # CPU seconds each group took to compile alone, its child's ~0.9 s of start-up left out (a 2-core
