@@ -23,14 +23,18 @@ are in two. The depth groups leave the voxels rays pass to ``rays``, which every
 from __future__ import annotations
 
 import fcntl
+import importlib
 import os
+import pkgutil
 import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
+from numba.core.registry import CPUDispatcher
 
+from .. import core
 from ..core import raycast
 from ..core.config import MapConfig
 from ..core.grid import pack_blocks
@@ -161,17 +165,11 @@ def cache_folder() -> Path:
 
 
 def _core_kernels():
-    """The numba functions of ``ltmap_cli.core`` that keep a disk cache."""
-    import importlib
-    import pkgutil
-
-    from numba.core.registry import CPUDispatcher
-
-    pkg = importlib.import_module("ltmap_cli.core")
-    for info in pkgutil.iter_modules(pkg.__path__):
-        mod = importlib.import_module(f"ltmap_cli.core.{info.name}")
+    """The numba functions of ``ltmap_cli.core`` (each with a disk cache: ``cache=True``)."""
+    for info in pkgutil.iter_modules(core.__path__):
+        mod = importlib.import_module(f"{core.__name__}.{info.name}")
         for obj in vars(mod).values():
-            if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__ and getattr(obj, "_cache", None) is not None:
+            if isinstance(obj, CPUDispatcher) and obj.__module__ == mod.__name__:
                 yield obj
 
 
