@@ -933,10 +933,13 @@ class LayeredMap:
         anywhere in it) is quiet. A miss there changes nothing: the log-odds stay clamped, and the
         tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a block that
         is quiet when the frame begins is skipped whole: the voxel is not stamped again (its stamp
-        stays that of the frame that clamped it) nor put in the tick buffer. O's log-odds, D and
-        the events are those of updating every voxel; only those stamps differ (a voxel is known,
-        stamp > 0, exactly when it is either way). A hit un-quiets its block from the next frame
-        on. Decided here, in frame order, so every path (serial, threads) gives the same map."""
+        stays that of the frame that clamped it) nor put in the tick buffer. O's log-odds, each D
+        voxel's values and the events are those of updating every voxel; those stamps differ (a
+        voxel is known, stamp > 0, exactly when it is either way), and D's blocks may be stored in
+        another order (a voxel skipped, then hit enough times in the same tick to be an obstacle,
+        enters the tick buffer later, so its D block is made later: the office bench scene's
+        person). A hit un-quiets its block from the next frame on. Decided here, in frame order,
+        so every path (serial, threads) gives the same map bit for bit."""
         q = self._quiet_sync()
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
