@@ -286,7 +286,8 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
     """numba keeps a hash of a module's source in its kernels' cache: a reinstall, a checkout or
     a touch that leaves the text as it was keeps the cache good, and ``kernels_cached()`` says so
     (it compared times before: every replay after a touch started compiling children with
-    nothing to compile, and waited for them); an edited module's cache is stale, and it says so."""
+    nothing to compile, and waited for them); an edited module's cache is stale, and it says so;
+    a damaged index is removed (numba failed on it in every run), and compiled again."""
     import shutil
 
     pkg = tmp_path / "code" / "ltmap_cli"
@@ -318,3 +319,9 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
     # one of the module's kernels compiled for its new text is enough: the others (depth_range_image
     # and its callee) keep their stale index until called, and are compiled then
     assert cached()
+    # a damaged index (a cache copied in part) is removed: not cached, and the kernel compiles
+    # again instead of failing in numba's unpickling in every run
+    index = next((tmp_path / "numba").glob("*/projective.ends_box-*.nbi"))
+    index.write_bytes(index.read_bytes()[:20])
+    assert not cached(compile_one=True)
+    assert index.exists() and cached()  # written again, whole

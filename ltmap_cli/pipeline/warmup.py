@@ -22,6 +22,7 @@ are in two. The depth groups leave the voxels rays pass to ``rays``, which every
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import importlib
 import os
@@ -183,13 +184,22 @@ def kernels_cached() -> bool:
     them), and an edited module's kernels are compiled again. Per core module, one index written
     for its text is enough: a kernel called only from other kernels (or from Python only on a
     rare path, a buffer's growth) keeps an index of an older text for as long as its callers'
-    are good, and a kernel never compiled has none."""
+    are good, and a kernel never compiled has none. An index that cannot be read (a cache
+    copied in part, a damaged disk: numba writes them whole) is removed, so numba compiles that
+    kernel again instead of failing on it in every run."""
     try:
         fresh: dict[str, bool] = {}
         for k in _core_kernels():
             f = k._cache._cache_file
-            if os.path.exists(f._index_path):  # ({} from _load_index: another numba, or another text)
-                fresh[k.__module__] = fresh.get(k.__module__, False) or bool(f._load_index())
+            if not os.path.exists(f._index_path) or fresh.get(k.__module__):
+                continue
+            try:
+                good = bool(f._load_index())  # ({}: another numba, or another source text)
+            except Exception:  # (unpickling a damaged file: any of several errors)
+                with contextlib.suppress(OSError):
+                    os.remove(f._index_path)
+                good = False  # (to compile, in the first run's children)
+            fresh[k.__module__] = good
         return bool(fresh) and all(fresh.values())
     except (AttributeError, ImportError):  # numba's internals moved: compare times, as numba did once
         folder = cache_folder()
