@@ -1,5 +1,6 @@
-"""Quiet blocks (issue 17): an O block whose 512 voxels are all clamped free and which has no D
-block takes no miss updates (they would change nothing).
+"""Quiet blocks (issue 17): an O block whose 512 voxels are all clamped free and which has no ST
+or LT (no D block, or one whose ST and LT are all 0 again) takes no miss updates (they would
+change nothing).
 
 - the map is the one of updating every voxel (``quiet_blocks = False``): O log-odds, D, events,
   block order bit for bit; only the stamps of voxels in quiet blocks differ (they keep the frame
@@ -111,9 +112,75 @@ def test_quiet_blocks_leave_the_map_of_every_update():
     # the counts are the quiet state of the map: recomputed from scratch, the same
     lo_min = np.float32(quiet.cfg.sensor.clamp_min_logodds)
     assert np.array_equal(q.nfree[:n], (lo == lo_min).sum(axis=1))
-    no_d = np.array([_d_block(quiet, b) < 0 for b in range(n)])
-    assert np.array_equal(q.quiet[:n].astype(bool), (q.nfree[:n] == 512) & no_d)
+    # quiet: all clamped free, and no ST or LT in the block (no D block, or the stray hits' D
+    # blocks once their ST fell back to 0), as of the last tick
+    q = quiet._quiet_sync()
+    d_block = np.array([_d_block(quiet, b) for b in range(n)])
+    no_st_lt = np.array([db < 0 or not (quiet.D.data["st"][db].any() or quiet.D.data["lt"][db].any())
+                         for db in d_block])  # fmt: skip
+    assert np.array_equal(q.quiet[:n].astype(bool), (q.nfree[:n] == 512) & no_st_lt)
+    assert (q.quiet[:n].astype(bool) & (d_block >= 0)).any()  # quiet with a D block: a stray hit's
     assert all(t.observed > 0 for t in ticks)
+
+
+# where the box's face was (x 1.5 m: voxel 30), in one block that has a D block from its hits
+_SEEDS = np.array([[29 + i, j, 20] for i in range(3) for j in range(3)], dtype=np.int64)
+
+
+def _o_block(m: LayeredMap, c) -> int:
+    from ltmap_cli.core.grid import find_block
+
+    return int(find_block(m.O.table_keys, m.O.table_vals, int(c[0]), int(c[1]), int(c[2])))
+
+
+def _depth_run(quiet: bool, seed_at: int | None = None):
+    """A depth camera 1 m up facing a wall 3 m away, as the replay integrates it (projective),
+    a tick every 3 frames: the wall alone (its free space clamps), a box 1.5 m away in part of
+    the image for 6 frames (hits: its blocks get D blocks with ST), then the wall alone for 60
+    frames (the box's space turns free again, its ST falls back to 0). ``seed_at``: LT seeded
+    before that frame at the box's space, as --resume or furniture drawn as long-term do."""
+    from ltmap_cli.core.config import MapConfig
+
+    cfg = MapConfig()
+    cfg.sensor.depth_integration = "projective"
+    m = LayeredMap(cfg)
+    m.quiet_blocks = quiet
+    pose = np.eye(4)
+    pose[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]  # optical frame looking along +x
+    pose[:3, 3] = [0.01, 0.01, 1.01]
+    wall = np.full((60, 80), 3000, dtype=np.uint16)
+    box = wall.copy()
+    box[20:40, 30:50] = 1500
+    for f, depth in enumerate([wall] * 12 + [box] * 6 + [wall] * 60):
+        if f == seed_at:
+            m.seed_long_term(_SEEDS, 0.9)
+        m.integrate_depth(depth, 50.0, 50.0, 39.5, 29.5, pose, 8.0)
+        if f % 3 == 2:
+            m.end_tick()
+    m._quiet_sync()
+    return m
+
+
+def test_blocks_whose_st_and_lt_fell_back_to_0_are_quiet_again():
+    """The D block of something seen once stays (a person walking through): once its ST and LT
+    are 0 again and its O voxels clamped free, the block is quiet like one that never had a D
+    block (the office bench scene: 40 such blocks in each frame's frustum, 22 % of the
+    projection's misses, were never quiet). The map stays that of updating every voxel, and LT
+    seeded there makes the block take misses again until it has fallen back to 0."""
+    for seed_at in (None, 30, 75):
+        full, quiet = _depth_run(False, seed_at), _depth_run(True, seed_at)
+        _same_map(full, quiet, stamps=False)
+        q, n = quiet._quiet, quiet.O.n_blocks
+        d_block = np.array([_d_block(quiet, b) for b in range(n)])
+        with_d = q.quiet[:n].astype(bool) & (d_block >= 0)
+        lt = quiet.D.channel("lt")
+        assert with_d.sum() >= 2  # the box's blocks, ST and LT 0 again (the wall's ST rises), are quiet
+        seeded = np.unique(np.array([_o_block(quiet, k >> 3) for k in _SEEDS]))
+        assert len(seeded) == 1 and seeded[0] >= 0 and _d_block(quiet, seeded[0]) >= 0
+        if seed_at == 75:  # LT seeded 3 frames ago: those blocks take misses again, LT falls
+            assert lt.max() > 0 and not q.quiet[seeded].any()
+        else:  # (seeded 48 frames ago: fallen back to 0, quiet again)
+            assert lt.max() == 0 and (seed_at is None or q.quiet[seeded].all())
 
 
 def _d_block(m: LayeredMap, b: int) -> int:

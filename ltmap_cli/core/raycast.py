@@ -575,14 +575,40 @@ def apply_voxels_kernel(
 
 
 @njit(cache=True, nogil=True)
-def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals):
+def _no_st_lt(d_keys, d_vals, st, lt, bx, by, bz):
+    """No ST and no LT in block (bx, by, bz): no D block there, or one whose voxels all have ST
+    and LT 0 (something seen there once, a person walking through, and gone since)."""
+    db = find_block(d_keys, d_vals, bx, by, bz)
+    if db < 0:
+        return True
+    for off in range(BLOCK_VOXELS):
+        if st[db, off] != 0.0 or lt[db, off] != 0.0:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals, st, lt):
     """Set ``quiet[b]`` for the O blocks ``blocks[:n]``: all 512 voxels clamped free
-    (``nfree[b] == 512``) and no D block at the same coordinates."""
+    (``nfree[b] == 512``) and no ST or LT in the block (``_no_st_lt``)."""
     for t in range(n):
         b = blocks[t]
-        q = nfree[b] == BLOCK_VOXELS and find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1],
-                                                    block_coords[b, 2]) < 0  # fmt: skip
+        q = nfree[b] == BLOCK_VOXELS and _no_st_lt(d_keys, d_vals, st, lt, block_coords[b, 0], block_coords[b, 1],
+                                                    block_coords[b, 2])  # fmt: skip
         quiet[b] = 1 if q else 0
+
+
+@njit(cache=True, nogil=True)
+def quiet_after_tick(n_blocks, nfree, quiet, block_coords, d_keys, d_vals, st, lt):
+    """After a tick: the O blocks all clamped free that were not quiet for their ST or LT and
+    have none left (the tick rules lowered them to 0) are quiet. Returns how many became so."""
+    n = 0
+    for b in range(n_blocks):
+        if quiet[b] == 0 and nfree[b] == BLOCK_VOXELS and _no_st_lt(d_keys, d_vals, st, lt, block_coords[b, 0],
+                                                                    block_coords[b, 1], block_coords[b, 2]):  # fmt: skip
+            quiet[b] = 1
+            n += 1
+    return n
 
 
 @njit(cache=True, nogil=True)

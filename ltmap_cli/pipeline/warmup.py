@@ -76,6 +76,10 @@ def warm_maps(cfg: MapConfig) -> None:
     m = LayeredMap(cfg)
     m.seed_long_term(np.array([[1, 1, 1], [2, 1, 1]], dtype=np.int64), 1.0)
     m.end_tick()
+    # the quiet blocks' check after a tick (the rays group's apply_voxels makes their record)
+    o, d = m.O, m.D
+    raycast.quiet_after_tick(o.n_blocks, np.zeros(o.max_blocks, dtype=np.int32), np.zeros(o.max_blocks, dtype=np.uint8),
+                             o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
