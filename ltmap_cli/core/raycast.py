@@ -581,7 +581,7 @@ def _no_st_lt(d_keys, d_vals, st, lt, bx, by, bz):
     db = find_block(d_keys, d_vals, bx, by, bz)
     if db < 0:
         return True
-    for off in range(BLOCK_VOXELS):
+    for off in range(BLOCK_VOXELS):  # noqa: SIM110 (a loop numba compiles, no generator)
         if st[db, off] != 0.0 or lt[db, off] != 0.0:
             return False
     return True
