@@ -105,7 +105,14 @@ class LazyGroup(click.Group):
             except (OSError, ValueError):  # (a stdout without a file descriptor: a test runner's)
                 pass
             ctx.exit(1)
-        except (LtmapError, OSError) as exc:
+        except Exception as exc:
+            if not isinstance(exc, (LtmapError, OSError)):
+                from .pipeline.warmup import kernel_cache_error  # (numba is loaded by then)
+
+                cache_error = kernel_cache_error(exc)
+                if cache_error is None:
+                    raise
+                exc = cache_error
             if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
                 # the traceback, then the same line and the same exit status as without --debug
                 click.echo(traceback.format_exc().rstrip("\n"), err=True)

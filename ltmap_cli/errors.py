@@ -64,6 +64,11 @@ class MapFileError(InputError):
     """A map file (map_server YAML + image, snapshot, state file) cannot be read."""
 
 
+class KernelCacheError(LtmapError):
+    """numba's disk cache of the compiled kernels holds a file it cannot read (a cache copied in
+    part, a damaged disk)."""
+
+
 class OutputError(LtmapError):
     """An output folder or file cannot be written (not a folder, no permission, disk full)."""
 

@@ -325,3 +325,73 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
     index.write_bytes(index.read_bytes()[:20])
     assert not cached(compile_one=True)
     assert index.exists() and cached()  # written again, whole
+
+
+_KERNEL = """
+from numba import njit
+
+
+@njit(cache=True)
+def plus_one(x):
+    return x + 1
+"""
+
+
+@pytest.mark.parametrize("damaged", ["nbc", "nbi"])
+def test_a_damaged_cache_file_is_one_error_that_removes_it(tmp_path, damaged):
+    """numba reads its cache files whole and does not catch a pickle cut short (a cache copied
+    in part): every run then failed in numba with its traceback, until the cache was deleted by
+    hand. ``kernel_cache_error`` names the file, removes it and its kernel's index, and the next
+    call compiles again. A data file (numba's own failure) and an index (met outside a replay's
+    ``kernels_cached``) alike; any other error is not it."""
+    import importlib
+    import sys
+
+    from ltmap_cli.errors import KernelCacheError
+    from ltmap_cli.pipeline.warmup import kernel_cache_error
+
+    name = f"ltmap_test_kernel_{damaged}"
+    (tmp_path / f"{name}.py").write_text(_KERNEL)
+    run = [sys.executable, "-c", f"import {name}; print({name}.plus_one(1))"]
+    env = {**os.environ, "PYTHONPATH": str(tmp_path)}
+    assert subprocess.run(run, capture_output=True, text=True, env=env, check=True).stdout.strip() == "2"
+    (cut,) = (tmp_path / "__pycache__").glob(f"{name}.*.{damaged}")
+    cut.write_bytes(cut.read_bytes()[: cut.stat().st_size // 2])
+    sys.path.insert(0, str(tmp_path))
+    try:
+        module = importlib.import_module(name)
+        with pytest.raises(Exception) as info:
+            module.plus_one(1)
+    finally:
+        sys.path.remove(str(tmp_path))
+        sys.modules.pop(name, None)
+    err = kernel_cache_error(info.value)
+    assert isinstance(err, KernelCacheError) and str(cut) in str(err) and "run the command again" in str(err)
+    assert not list((tmp_path / "__pycache__").glob(f"{name}.*.nbi")) and not cut.exists()
+    assert kernel_cache_error(ValueError("another error")) is None
+    # the next run compiles it again, and the one after loads it
+    for _ in range(2):
+        assert subprocess.run(run, capture_output=True, text=True, env=env, check=True).stdout.strip() == "2"
+
+
+def test_the_cli_says_a_damaged_kernel_cache_in_one_line_and_heals(tmp_path):
+    """``ltmap plan`` on a cache whose planner data file is cut short: one line naming the file,
+    exit status 2 (was numba's traceback and status 1 in every run); the run after plans as the
+    first did."""
+    import sys
+
+    from test_plan import door_map, write_trinary, xy
+
+    grid = write_trinary(tmp_path / "m.yaml", door_map(True))
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache"), "PYTHONPATH": str(ROOT)}
+    cmd = [sys.executable, "-m", "ltmap_cli", "plan", str(grid), "--start", xy(10, 30), "--goal", xy(50, 30)]
+    first = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    assert first.returncode == 0, first.stderr
+    (data,) = (tmp_path / "cache").rglob("planner._astar-*.nbc")
+    data.write_bytes(data.read_bytes()[:100])
+    bad = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    assert bad.returncode == 2 and bad.stderr.startswith("ltmap: error: numba's cache of the compiled kernels")
+    assert len(bad.stderr.strip().splitlines()) == 1 and data.name in bad.stderr and not data.exists()
+    again = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    plan = [line for line in first.stdout.splitlines() if not line.startswith("expanded:")]  # (its time)
+    assert again.returncode == 0 and [line for line in again.stdout.splitlines() if line in plan] == plan

@@ -43,6 +43,7 @@ from ..core.layers import LayeredMap
 from ..core.projection import project, virtual_scan
 from ..core.projective import quiet_keys_in_box
 from ..core.sensors import transform_points
+from ..errors import KernelCacheError
 from .executor import usable_cores
 
 CORE = Path(__file__).resolve().parent.parent / "core"
@@ -209,6 +210,47 @@ def kernels_cached() -> bool:
         folder = cache_folder()
         newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None) if folder.is_dir() else None
         return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
+
+
+_NUMBA_LOADS = ("_load_index", "_load_data")  # numba.core.caching.IndexDataCacheFile's readers
+
+
+def kernel_cache_error(exc: BaseException) -> KernelCacheError | None:
+    """When numba failed reading a file of its disk cache (``exc`` raised, in this thread or a
+    worker's, from ``IndexDataCacheFile._load_index`` or ``_load_data``: a data file or an index
+    cut short or damaged, which numba does not catch), that file and its kernel's index removed
+    and an error saying so; else None. numba compiles the kernel again at its next call, so the
+    next run works (before, every run failed there with numba's traceback until the cache was
+    deleted by hand). ``kernels_cached`` removes damaged indexes before a replay; this catches
+    the rest: data files, other commands' kernels."""
+    seen: set[int] = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        tb = exc.__traceback__
+        while tb is not None:
+            code = tb.tb_frame.f_code
+            if code.co_name in _NUMBA_LOADS and Path(code.co_filename).parts[-3:] == ("numba", "core", "caching.py"):
+                local = tb.tb_frame.f_locals
+                cache = local.get("self")
+                path = local.get("path") if code.co_name == "_load_data" else getattr(cache, "_index_path", None)
+                if path:
+                    return _removed_cache_file(Path(path), getattr(cache, "_index_path", None), exc)
+            tb = tb.tb_next
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _removed_cache_file(path: Path, index: str | None, exc: BaseException) -> KernelCacheError:
+    removed = []
+    for p in dict.fromkeys([path, Path(index) if index else path]):
+        with contextlib.suppress(OSError):
+            p.unlink()
+            removed.append(p.name)
+    what = f"{type(exc).__name__}: {exc}".rstrip(": ")
+    done = f"removed {' and '.join(removed)}, so it compiles again (once, a few seconds)" if removed else \
+        f"remove it (or the whole folder {path.parent})"
+    return KernelCacheError(f"numba's cache of the compiled kernels holds a file it cannot read: {path} ({what}); "
+                            f"{done}; run the command again")  # fmt: skip
 
 
 # CPU seconds each group took to compile alone, its child's ~0.9 s of start-up left out (a 2-core
