@@ -107,9 +107,7 @@ class LazyGroup(click.Group):
             ctx.exit(1)
         except Exception as exc:
             if not isinstance(exc, (LtmapError, OSError)):
-                from .pipeline.warmup import kernel_cache_error  # (numba is loaded by then)
-
-                cache_error = kernel_cache_error(exc)
+                cache_error = _kernel_cache_error(exc)
                 if cache_error is None:
                     raise
                 exc = cache_error
@@ -123,6 +121,17 @@ class LazyGroup(click.Group):
                 ctx.exit(2)
             click.echo(f"ltmap: error: {exc}", err=True)
             ctx.exit(exc.exit_code)
+
+
+def _kernel_cache_error(exc: Exception) -> LtmapError | None:
+    """numba failing on a damaged file of its kernel cache, as one error
+    (``warmup.kernel_cache_error``); None for anything else, click's own exits included (whose
+    path does not import numba for it)."""
+    if "numba" not in sys.modules or isinstance(exc, (click.exceptions.Exit, click.Abort, click.ClickException)):
+        return None
+    from .pipeline.warmup import kernel_cache_error
+
+    return kernel_cache_error(exc)
 
 
 def _show_warning(fallback):

@@ -631,7 +631,7 @@ class _QuietBlocks:
     def after_tick(self, lmap: LayeredMap) -> None:
         """A tick ended: blocks all clamped free whose ST and LT the tick rules brought to 0 are
         quiet (the D block of something seen once stays: the office bench scene's person left 40
-        such blocks in each frame's frustum, 22 % of the projection's misses, never quiet)."""
+        such blocks in each frame's frustum, 22 % of the masks' miss bits, never quiet)."""
         d = lmap.D
         if quiet_after_tick(lmap.O.n_blocks, self.nfree, self.quiet, lmap.O.block_coords, d.table_keys, d.table_vals,
                             d.data["st"], d.data["lt"]):  # fmt: skip
@@ -942,7 +942,8 @@ class LayeredMap:
 
         Quiet blocks (``quiet_blocks``, default on): an O block all of whose 512 voxels are
         clamped free (log-odds at ``clamp_min_logodds``) and that has no ST or LT anywhere in it
-        (no D block, or one whose ST and LT the tick rules brought back to 0) is quiet. A miss there changes nothing: the log-odds stay clamped, and the
+        (no D block, or one whose ST and LT the tick rules brought back to 0) is quiet. A miss
+        there changes nothing: the log-odds stay clamped, and the
         tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a block that
         is quiet when the frame begins is skipped whole: the voxel is not stamped again (its stamp
         stays that of the frame that clamped it) nor put in the tick buffer. O's log-odds, each D
