@@ -395,3 +395,40 @@ def test_the_cli_says_a_damaged_kernel_cache_in_one_line_and_heals(tmp_path):
     again = subprocess.run(cmd, capture_output=True, text=True, env=env)
     plan = [line for line in first.stdout.splitlines() if not line.startswith("expanded:")]  # (its time)
     assert again.returncode == 0 and [line for line in again.stdout.splitlines() if line in plan] == plan
+
+
+def test_a_read_only_install_with_no_user_cache_caches_the_kernels_in_the_temp_folder(tmp_path):
+    """numba caches kernels beside the modules or in the user's cache folder, and refuses at
+    import when it can write neither (an install owned by root with a read-only home; a
+    container's read-only root file system): "cannot cache function 'pack_block': no locator
+    available", in every command, ``--help`` included. ``ltmap_cli`` then points
+    ``NUMBA_CACHE_DIR`` at a folder of its own in the temp folder. Made here without
+    permissions (the tests may run as root): a file where the package's ``__pycache__`` would
+    be, and ``XDG_CACHE_HOME`` under a file."""
+    import shutil
+    import sys
+
+    from ltmap_cli import _kernel_cache_fallback
+
+    copy = tmp_path / "site"
+    shutil.copytree(ROOT / "ltmap_cli", copy / "ltmap_cli", ignore=shutil.ignore_patterns("__pycache__"))
+    for package in ("core", "analysis", "io", "sim", "pipeline"):
+        (copy / "ltmap_cli" / package / "__pycache__").write_text("not a folder")
+    (tmp_path / "tmp").mkdir()
+    env = {**os.environ, "PYTHONPATH": str(copy), "XDG_CACHE_HOME": "/dev/null/cache", "TMPDIR": str(tmp_path / "tmp")}
+    env.pop("NUMBA_CACHE_DIR", None)
+    call = "import ltmap_cli.core.grid as g, numpy as np; print(g.unpack_block(np.int64(g.pack_block(1, 2, 3))))"
+    out = subprocess.run([sys.executable, "-c", call], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert out.stdout.split() == ["(1,", "2,", "3)"]
+    cached = list((tmp_path / "tmp").glob(f"ltmap-numba-cache-{os.getuid()}/core_*/grid.*.nbi"))
+    assert cached  # compiled into the fallback folder, found there by the next process
+    help_ = subprocess.run([sys.executable, "-m", "ltmap_cli", "plan", "--help"], capture_output=True, text=True,
+                           env=env, cwd=tmp_path)  # fmt: skip
+    assert help_.returncode == 0 and "Usage:" in help_.stdout
+    # the decision itself: a cache dir given wins; a writable package or user folder is left to numba
+    environ = {"XDG_CACHE_HOME": "/dev/null/cache"}
+    assert _kernel_cache_fallback(environ, package=copy / "ltmap_cli") == environ["NUMBA_CACHE_DIR"]
+    assert _kernel_cache_fallback({"NUMBA_CACHE_DIR": "/x", "XDG_CACHE_HOME": "/dev/null/c"}, package=copy / "ltmap_cli") is None
+    assert _kernel_cache_fallback({"XDG_CACHE_HOME": str(tmp_path / "user")}, package=copy / "ltmap_cli") is None
+    assert _kernel_cache_fallback({"XDG_CACHE_HOME": "/dev/null/cache"}, package=ROOT / "ltmap_cli") is None
