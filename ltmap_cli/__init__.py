@@ -1,6 +1,7 @@
 """ltmap: replay robot logs through a layered long-term 3D map."""
 
 import os
+import stat
 import sys
 import tempfile
 from pathlib import Path
@@ -42,8 +43,11 @@ def _kernel_cache_fallback(environ=os.environ, package: Path | None = None) -> s
     folder = Path(tempfile.gettempdir()) / f"ltmap-numba-cache-{os.getuid()}"
     try:
         folder.mkdir(mode=0o700, exist_ok=True)
+        st = folder.lstat()
     except OSError:
         return None  # (nothing writable: numba's own error)
+    if not stat.S_ISDIR(st.st_mode) or st.st_uid != os.getuid() or st.st_mode & 0o022:
+        return None  # made by someone else (numba would load their pickles as our kernels): numba's error
     environ["NUMBA_CACHE_DIR"] = str(folder)
     config = sys.modules.get("numba.core.config")
     if config is not None:

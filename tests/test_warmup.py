@@ -397,7 +397,7 @@ def test_the_cli_says_a_damaged_kernel_cache_in_one_line_and_heals(tmp_path):
     assert again.returncode == 0 and [line for line in again.stdout.splitlines() if line in plan] == plan
 
 
-def test_a_read_only_install_with_no_user_cache_caches_the_kernels_in_the_temp_folder(tmp_path):
+def test_a_read_only_install_with_no_user_cache_caches_the_kernels_in_the_temp_folder(tmp_path, monkeypatch):
     """numba caches kernels beside the modules or in the user's cache folder, and refuses at
     import when it can write neither (an install owned by root with a read-only home; a
     container's read-only root file system): "cannot cache function 'pack_block': no locator
@@ -427,8 +427,16 @@ def test_a_read_only_install_with_no_user_cache_caches_the_kernels_in_the_temp_f
                            env=env, cwd=tmp_path)  # fmt: skip
     assert help_.returncode == 0 and "Usage:" in help_.stdout
     # the decision itself: a cache dir given wins; a writable package or user folder is left to numba
+    import tempfile
+
+    (tmp_path / "tmp2").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp2"))
     environ = {"XDG_CACHE_HOME": "/dev/null/cache"}
     assert _kernel_cache_fallback(environ, package=copy / "ltmap_cli") == environ["NUMBA_CACHE_DIR"]
     assert _kernel_cache_fallback({"NUMBA_CACHE_DIR": "/x", "XDG_CACHE_HOME": "/dev/null/c"}, package=copy / "ltmap_cli") is None
     assert _kernel_cache_fallback({"XDG_CACHE_HOME": str(tmp_path / "user")}, package=copy / "ltmap_cli") is None
     assert _kernel_cache_fallback({"XDG_CACHE_HOME": "/dev/null/cache"}, package=ROOT / "ltmap_cli") is None
+    # a folder of that name that others may write into is not taken (their pickles would be loaded as kernels)
+    (tmp_path / "tmp" / f"ltmap-numba-cache-{os.getuid()}").chmod(0o777)
+    out = subprocess.run([sys.executable, "-c", call], capture_output=True, text=True, env=env, cwd=tmp_path)
+    assert out.returncode != 0 and "no locator available" in out.stderr
