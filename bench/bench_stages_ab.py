@@ -2,7 +2,8 @@
 
 On a noisy machine (a shared VM: the same code's replay varies by 30 % within an hour) whole-run
 figures cannot resolve a change of a few per cent. This runs each scene's log ``--rounds`` times
-per code, alternating which goes first, each run a fresh process on the serial path (one thread:
+per code (after one run of each that is not counted: a code's first run may compile its kernels),
+alternating which goes first, each run a fresh process on the serial path (one thread:
 no worker contention), and sums the thread CPU of each ``LayeredMap`` step: the projection
 (``depth_projection``), the rays' voxels (``frame_voxels``: the tails), the map thread's updates
 (``apply_voxels``, and within it the lists and the masks), the tick rules (``end_tick``), and the
@@ -108,8 +109,8 @@ def main() -> None:
     for scene in args.scenes.split(","):
         log = bench_long_rays.ensure_log(scene)
         spent = {"now": [], "before": []}
-        for r in range(args.rounds):
-            for which in ("now", "before") if r % 2 == 0 else ("before", "now"):
+        for r in range(-1, args.rounds):  # round -1: each code once, not counted (a code's first run
+            for which in ("now", "before") if r % 2 == 0 else ("before", "now"):  # compiles its kernels)
                 env = dict(os.environ)
                 if which == "before":
                     env["PYTHONPATH"] = str(before) + os.pathsep + env.get("PYTHONPATH", "")
@@ -117,7 +118,8 @@ def main() -> None:
                 out.mkdir(parents=True, exist_ok=True)
                 proc = subprocess.run([sys.executable, __file__, "--child", str(log), str(out)], env=env,
                                       capture_output=True, text=True, check=True)  # fmt: skip
-                spent[which].append(json.loads(proc.stdout.strip().splitlines()[-1]))
+                if r >= 0:
+                    spent[which].append(json.loads(proc.stdout.strip().splitlines()[-1]))
         line = [f"{scene} ({args.rounds} rounds, CPU s a run now / before, ratio):"]
         for name in ("process", *STEPS):
             a = sum(x.get(name, 0.0) for x in spent["now"]) / args.rounds
