@@ -595,12 +595,14 @@ class _QuietBlocks:
     """The record of quiet O blocks that ``LayeredMap.apply_voxels`` keeps: per O block the count
     of voxels clamped free (``nfree``) and the quiet flag (``quiet``)."""
 
+    NFREE, FLAG = np.int32, np.uint8  # the dtypes of ``nfree`` and ``quiet`` (the kernels compile for them)
+
     def __init__(self, lmap: LayeredMap, lo_min: float):
         o = lmap.O
         self.o, self.lo_min, self.active = o, lo_min, lmap.quiet_blocks
         self.tick = lmap.tick_index  # the tick whose ST and LT the flags follow (after_tick)
-        self.nfree = np.zeros(o.max_blocks, dtype=np.int32)
-        self.quiet = np.zeros(o.max_blocks, dtype=np.uint8)
+        self.nfree = np.zeros(o.max_blocks, dtype=self.NFREE)
+        self.quiet = np.zeros(o.max_blocks, dtype=self.FLAG)
         self.changed = np.empty(1 << 12, dtype=np.int64)
         self.ch_meta = np.zeros(1, dtype=np.int64)
         n = o.n_blocks

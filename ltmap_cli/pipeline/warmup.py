@@ -39,7 +39,7 @@ from .. import core
 from ..core import raycast
 from ..core.config import MapConfig
 from ..core.grid import pack_blocks
-from ..core.layers import LayeredMap
+from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
 from ..core.projective import quiet_keys_in_box
 from ..core.sensors import transform_points
@@ -78,8 +78,8 @@ def warm_maps(cfg: MapConfig) -> None:
     m.seed_long_term(np.array([[1, 1, 1], [2, 1, 1]], dtype=np.int64), 1.0)
     m.end_tick()
     # the quiet blocks' check after a tick (the rays group's apply_voxels makes their record)
-    o, d = m.O, m.D
-    raycast.quiet_after_tick(o.n_blocks, np.zeros(o.max_blocks, dtype=np.int32), np.zeros(o.max_blocks, dtype=np.uint8),
+    o, d, q = m.O, m.D, _QuietBlocks
+    raycast.quiet_after_tick(o.n_blocks, np.zeros(o.max_blocks, dtype=q.NFREE), np.zeros(o.max_blocks, dtype=q.FLAG),
                              o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
