@@ -164,9 +164,19 @@ def test_quiet_blocks_take_no_projective_miss():
     assert q.quiet[: m.O.n_blocks].sum() > 10
     stamp = m.O.channel("stamp").copy()
     quiet = q.quiet[: m.O.n_blocks].astype(bool)
+    # and the quiet quarters (4 x 4 x 4) of the blocks that are not quiet: the wall's blocks
+    off = np.arange(512)
+    quarter = 4 * (off >> 6 >= 4) + 2 * ((off >> 3) % 8 >= 4) + (off % 8 >= 4)
+    in_quiet_q = (q.qquiet[: m.O.n_blocks, None].astype(np.int64) >> quarter[None, :]) & 1 == 1
+    partial = ~quiet & in_quiet_q.any(axis=1)
+    assert partial.sum() > 5 and in_quiet_q[partial].sum() > 1000
     _integrate(m, _wall())
     assert (m.O.channel("stamp")[quiet] == stamp[quiet]).all()
+    assert (m.O.channel("stamp")[in_quiet_q] == stamp[in_quiet_q]).all()
     assert (m.O.channel("stamp")[~quiet] != stamp[~quiet]).any()
+    # the other voxels of those blocks take misses: the projection's free space before the wall
+    rest = ~in_quiet_q & partial[:, None] & (m.O.channel("logodds") < 0)
+    assert (m.O.channel("stamp")[rest] != stamp[rest]).sum() > 100
 
 
 def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):

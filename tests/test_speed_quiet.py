@@ -1,13 +1,14 @@
-"""Quiet blocks (issue 17): an O block whose 512 voxels are all clamped free and which has no ST
-or LT (no D block, or one whose ST and LT are all 0 again) takes no miss updates (they would
-change nothing).
+"""Quiet quarters and blocks (issue 17): a 4 x 4 x 4 quarter of an O block whose 64 voxels are
+all clamped free and which has no ST or LT (no D block, or one whose ST and LT are all 0 there
+again) takes no miss updates (they would change nothing); a block of eight such quarters is quiet
+(the workers' projection skips it).
 
 - the map is the one of updating every voxel (``quiet_blocks = False``): O log-odds, D, events,
   block order bit for bit; only the stamps of voxels in quiet blocks differ (they keep the frame
   that clamped them), and a voxel is known (stamp > 0) exactly when it is there;
 - it is decided in ``apply_voxels``, in frame order: frames cast several frames ahead of being
   applied (as the replay's worker threads cast them) give the same map bit for bit, stamps too;
-- the per-block counts stay those of the map, also after a loaded state and new LT seeds;
+- the per-quarter counts stay those of the map, also after a loaded state and new LT seeds;
 - the replay of a sample log gives the same map on the serial path and the threaded one.
 """
 
@@ -24,6 +25,29 @@ from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
 ROOT = Path(__file__).resolve().parent.parent
 HOUSE = ROOT / "sample_logs" / "scenarios" / "06_house" / "log.mcap"
+
+
+def _by_quarter(a: np.ndarray) -> np.ndarray:
+    """(n, 512) per voxel of O blocks -> (n, 8, 64): each quarter's 64 voxels (quarter 4 * x half +
+    2 * y half + z half, as core.projective's block loop numbers them), computed here from the
+    offsets (x * 64 + y * 8 + z), not from the kernels' helper."""
+    off = np.arange(512)
+    quarter = 4 * (off >> 6 >= 4) + 2 * ((off >> 3) % 8 >= 4) + (off % 8 >= 4)
+    return a[:, np.argsort(quarter, kind="stable")].reshape(len(a), 8, 64)
+
+
+def _quiet_rule(m: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
+    """What the quiet record should say of the map as it is: per O block and quarter the count
+    of voxels clamped free, and the quiet quarters (64 clamped free, no ST or LT) as bits."""
+    n = m.O.n_blocks
+    free = _by_quarter(m.O.data["logodds"][:n] == np.float32(m.cfg.sensor.clamp_min_logodds))
+    st_lt = np.zeros((n, 8, 64), dtype=bool)
+    for b in range(n):
+        db = _d_block(m, b)
+        if db >= 0:
+            st_lt[b] = _by_quarter(((m.D.data["st"][db] != 0) | (m.D.data["lt"][db] != 0))[None])[0]
+    quiet = free.all(axis=2) & ~st_lt.any(axis=2)
+    return free.sum(axis=2), (quiet * (1 << np.arange(8))).sum(axis=1)
 
 
 def _frames(n: int, seed: int):
@@ -110,16 +134,17 @@ def test_quiet_blocks_leave_the_map_of_every_update():
     assert (lo[differ] == np.float32(quiet.cfg.sensor.clamp_min_logodds)).all()
     assert (sb[differ] < sa[differ]).all()
     # the counts are the quiet state of the map: recomputed from scratch, the same
-    lo_min = np.float32(quiet.cfg.sensor.clamp_min_logodds)
-    assert np.array_equal(q.nfree[:n], (lo == lo_min).sum(axis=1))
-    # quiet: all clamped free, and no ST or LT in the block (no D block, or the stray hits' D
-    # blocks once their ST fell back to 0), as of the last tick
     q = quiet._quiet_sync()
+    nfree, qquiet = _quiet_rule(quiet)
+    assert np.array_equal(q.nfree[:n], nfree)
+    # quiet quarters: all clamped free, and no ST or LT there (no D block, or the stray hits' D
+    # blocks once their ST fell back to 0), as of the last tick; a block is quiet when all are
+    assert np.array_equal(q.qquiet[:n], qquiet)
+    assert np.array_equal(q.quiet[:n].astype(bool), qquiet == 255)
     d_block = np.array([_d_block(quiet, b) for b in range(n)])
-    no_st_lt = np.array([db < 0 or not (quiet.D.data["st"][db].any() or quiet.D.data["lt"][db].any())
-                         for db in d_block])  # fmt: skip
-    assert np.array_equal(q.quiet[:n].astype(bool), (q.nfree[:n] == 512) & no_st_lt)
     assert (q.quiet[:n].astype(bool) & (d_block >= 0)).any()  # quiet with a D block: a stray hit's
+    # quiet quarters in blocks that are not quiet (a wall's blocks, the stray hits' quarters)
+    assert ((qquiet > 0) & (qquiet < 255)).sum() > 20
     assert all(t.observed > 0 for t in ticks)
 
 
@@ -181,6 +206,9 @@ def test_blocks_whose_st_and_lt_fell_back_to_0_are_quiet_again():
             assert lt.max() > 0 and not q.quiet[seeded].any()
         else:  # (seeded 48 frames ago: fallen back to 0, quiet again)
             assert lt.max() == 0 and (seed_at is None or q.quiet[seeded].all())
+        nfree, qquiet = _quiet_rule(quiet)
+        assert np.array_equal(q.nfree[:n], nfree) and np.array_equal(q.qquiet[:n], qquiet)
+        assert ((qquiet > 0) & (qquiet < 255)).sum() >= 10  # the wall's blocks: quarters in front of it
 
 
 def _d_block(m: LayeredMap, b: int) -> int:
@@ -232,6 +260,9 @@ def test_quiet_blocks_follow_a_loaded_state_and_new_long_term_seeds():
         for ch in x.D.data:
             assert np.array_equal(x.D.data[ch][:nd], ref2.D.data[ch][:nd]), ch
         assert not x._quiet.quiet[qb].any()
+        x._quiet_sync()
+        nfree, qquiet = _quiet_rule(x)
+        assert np.array_equal(x._quiet.nfree[:n], nfree) and np.array_equal(x._quiet.qquiet[:n], qquiet)
     assert ref.frame_id == 60
 
 
@@ -270,8 +301,10 @@ def test_quiet_counts_survive_storage_growing_mid_frame():
             tight.end_tick()
     _same_map(ref, tight, stamps=True)
     n = tight.O.n_blocks
-    lo_min = np.float32(tight.cfg.sensor.clamp_min_logodds)
-    assert np.array_equal(tight._quiet.nfree[:n], (tight.O.data["logodds"][:n] == lo_min).sum(axis=1))
+    tight._quiet_sync()
+    nfree, qquiet = _quiet_rule(tight)
+    assert np.array_equal(tight._quiet.nfree[:n], nfree)
+    assert np.array_equal(tight._quiet.qquiet[:n], qquiet)
     assert np.array_equal(tight._quiet.quiet[:n], ref._quiet.quiet[:n])
     assert len(tight._quiet.changed) > 1 and tight._quiet.quiet[:n].sum() > 0
 

@@ -592,16 +592,19 @@ _NO_KEYS = np.empty(0, dtype=np.int64)
 
 
 class _QuietBlocks:
-    """The record of quiet O blocks that ``LayeredMap.apply_voxels`` keeps: per O block the count
-    of voxels clamped free (``nfree``) and the quiet flag (``quiet``)."""
+    """The record of quiet O blocks and quarters that ``LayeredMap.apply_voxels`` keeps: per O
+    block and quarter (4 x 4 x 4, ``core.raycast.quarter_of``) the count of voxels clamped free
+    (``nfree`` (B, 8)), per block its quiet quarters (``qquiet``, a bit each) and the quiet flag
+    (``quiet``: all eight quarters quiet; what the workers' projection skips)."""
 
-    NFREE, FLAG = np.int32, np.uint8  # the dtypes of ``nfree`` and ``quiet`` (the kernels compile for them)
+    NFREE, FLAG = np.int32, np.uint8  # the dtypes of ``nfree``, ``qquiet`` and ``quiet`` (the kernels compile for them)
 
     def __init__(self, lmap: LayeredMap, lo_min: float):
         o = lmap.O
         self.o, self.lo_min, self.active = o, lo_min, lmap.quiet_blocks
         self.tick = lmap.tick_index  # the tick whose ST and LT the flags follow (after_tick)
-        self.nfree = np.zeros(o.max_blocks, dtype=self.NFREE)
+        self.nfree = np.zeros((o.max_blocks, 8), dtype=self.NFREE)
+        self.qquiet = np.zeros(o.max_blocks, dtype=self.FLAG)
         self.quiet = np.zeros(o.max_blocks, dtype=self.FLAG)
         self.changed = np.empty(1 << 12, dtype=np.int64)
         self.ch_meta = np.zeros(1, dtype=np.int64)
@@ -612,31 +615,32 @@ class _QuietBlocks:
     def fit(self, max_blocks: int) -> None:
         if len(self.nfree) < max_blocks:
             extra = max_blocks - len(self.nfree)
-            self.nfree = np.concatenate([self.nfree, np.zeros(extra, dtype=self.nfree.dtype)])
+            self.nfree = np.concatenate([self.nfree, np.zeros((extra, 8), dtype=self.nfree.dtype)])
+            self.qquiet = np.concatenate([self.qquiet, np.zeros(extra, dtype=self.qquiet.dtype)])
             self.quiet = np.concatenate([self.quiet, np.zeros(extra, dtype=self.quiet.dtype)])
 
     def update(self, lmap: LayeredMap, n: int, blocks: np.ndarray | None = None) -> None:
-        """Quiet flags of ``blocks[:n]`` (default: those whose count the last frame moved to or
-        from 512)."""
+        """Quiet flags of ``blocks[:n]`` (default: those with a quarter whose count the last frame
+        moved to or from 64)."""
         d, o = lmap.D, lmap.O
-        quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.quiet, o.block_coords,
+        quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.qquiet, self.quiet, o.block_coords,
                      d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
         self.d, self.d_blocks = d, d.n_blocks
         self.version = next(_QUIET_VERSIONS)  # (the flags may have changed: publish them again)
 
     def revalidate(self, lmap: LayeredMap) -> None:
         """D gained blocks (the tick rules' obstacles, long-term seeds) or was replaced, or LT
-        was seeded: quiet blocks that now have ST or LT are quiet no more."""
-        qb = np.nonzero(self.quiet[: lmap.O.n_blocks])[0].astype(np.int64)
+        was seeded: quiet quarters that now have ST or LT are quiet no more."""
+        qb = np.nonzero(self.qquiet[: lmap.O.n_blocks])[0].astype(np.int64)
         self.update(lmap, len(qb), qb)
 
     def after_tick(self, lmap: LayeredMap) -> None:
-        """A tick ended: blocks all clamped free whose ST and LT the tick rules brought to 0 are
+        """A tick ended: quarters all clamped free whose ST and LT the tick rules brought to 0 are
         quiet (the D block of something seen once stays: the office bench scene's person left 40
         such blocks in each frame's frustum, 22 % of the masks' miss bits, never quiet)."""
         d = lmap.D
-        if quiet_after_tick(lmap.O.n_blocks, self.nfree, self.quiet, lmap.O.block_coords, d.table_keys, d.table_vals,
-                            d.data["st"], d.data["lt"]):  # fmt: skip
+        if quiet_after_tick(lmap.O.n_blocks, self.nfree, self.qquiet, self.quiet, lmap.O.block_coords, d.table_keys,
+                            d.table_vals, d.data["st"], d.data["lt"]):  # fmt: skip
             self.version = next(_QUIET_VERSIONS)
         self.tick = lmap.tick_index
 
@@ -1026,7 +1030,7 @@ class LayeredMap:
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
-                phase, start, counters, q.nfree, q.quiet, use_quiet, q.changed, q.ch_meta,
+                phase, start, counters, q.nfree, q.qquiet, use_quiet, q.changed, q.ch_meta,
             )  # fmt: skip
             if status == STATUS_DONE:
                 break
@@ -1044,7 +1048,7 @@ class LayeredMap:
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.miss_logodds, sc.clamp_min_logodds, counters,
-                q.nfree, q.quiet, self.quiet_blocks, q.changed, q.ch_meta,
+                q.nfree, q.qquiet, self.quiet_blocks, q.changed, q.ch_meta,
             )  # fmt: skip
             if status == STATUS_DONE:
                 break

@@ -60,6 +60,36 @@ FV_STATE_SLOTS = 4
 # what frame_voxels needs grown when it returns False (seen_meta[SEEN_GROW])
 GROW_DENSE, GROW_MISSES, GROW_SPARSE = 1, 2, 3
 
+# quiet quarters: an O block's 4 x 4 x 4 quarters, numbered as core.projective's block loop takes
+# them (bit 2: x half, bit 1: y half, bit 0: z half); a block's quiet flags are a byte, one bit a
+# quarter, and the block is quiet when all eight are
+QUARTER_VOXELS = BLOCK_VOXELS // 8
+QUIET_ALL = 255
+
+
+def _quarter_keep() -> np.ndarray:
+    """``QUARTER_KEEP[m]``: the bits of one 64-bit word of a block's miss mask (the voxels of one
+    x slice, bit y * 8 + z) outside the quarters of the 4-bit set ``m`` (bit 1: y half, bit 0: z
+    half) of that slice's x half."""
+    keep = np.empty(16, dtype=np.uint64)
+    for m in range(16):
+        drop = 0
+        for s in range(4):
+            if m >> s & 1:
+                for y in range((s >> 1) * 4, (s >> 1) * 4 + 4):
+                    drop |= 0xF << (y * 8 + (s & 1) * 4)
+        keep[m] = ~np.uint64(drop)
+    return keep
+
+
+QUARTER_KEEP = _quarter_keep()
+
+
+@njit(cache=True, nogil=True, inline="always")
+def quarter_of(off):
+    """The quarter (0..7) of the voxel at offset ``off`` in its block (``voxel_offset``)."""
+    return ((off >> 6) & 4) | ((off >> 4) & 2) | ((off >> 2) & 1)
+
 
 @njit(cache=True, nogil=True)
 def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp):
@@ -403,7 +433,7 @@ def apply_mask_misses(
     table_keys, table_vals, block_coords, meta, logodds, stamp,
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     miss_lo, lo_min, counters,
-    nfree, quiet, use_quiet, changed, ch_meta,
+    nfree, qquiet, use_quiet, changed, ch_meta,
 ):  # fmt: skip
     """The misses of blocks given as bit masks (``bkeys`` packed block keys, ``masks`` (B, 8)
     uint64: bit ``off`` of a block's 512, in key order, offsets ascending): what
@@ -411,8 +441,9 @@ def apply_mask_misses(
     same updates in the same order, block by block without listing them (a depth frame's
     projection: 2.3x less time than listing and applying the keys). From block ``start``;
     returns (status, block to go on from). A block is done whole: room for its 512 voxels in the
-    tick buffer and one entry in ``changed`` is made sure of first (misses only raise a block's
-    count of clamped-free voxels, so it reaches 512 at most once). The per-voxel update is
+    tick buffer and eight entries in ``changed`` is made sure of first (misses only raise a
+    quarter's count of clamped-free voxels, so each of the eight reaches 64 at most once). The
+    bits of quiet quarters are dropped a word at a time (``QUARTER_KEEP``). The per-voxel update is
     written out here as in ``apply_voxels_kernel``: numba's call to a shared helper, even
     inline="always", took 3x the time of the update itself."""
     miss_lo32 = np.float32(miss_lo)
@@ -423,7 +454,7 @@ def apply_mask_misses(
     ch_cap = changed.shape[0]
     n_done = 0
     for t in range(start, bkeys.shape[0]):
-        if n_tb + BLOCK_VOXELS > tb_cap or (use_quiet and n_ch >= ch_cap):
+        if n_tb + BLOCK_VOXELS > tb_cap or (use_quiet and n_ch + 8 > ch_cap):
             tb_meta[0] = n_tb
             ch_meta[0] = n_ch
             counters[1] += n_done
@@ -435,10 +466,13 @@ def apply_mask_misses(
             ch_meta[0] = n_ch
             counters[1] += n_done
             return STATUS_NEED_BLOCKS, t
-        if use_quiet and quiet[b] != 0:
+        qq = np.int64(qquiet[b]) if use_quiet else np.int64(0)
+        if qq == QUIET_ALL:
             continue
         for wd in range(8):
             word = masks[t, wd]
+            if qq != 0:
+                word &= QUARTER_KEEP[(qq >> ((wd >> 2) << 2)) & 15]
             off = wd * 64 - 1
             while word != 0:
                 off += 1
@@ -460,8 +494,9 @@ def apply_mask_misses(
                 stamp[b, off] = frame_id
                 n_done += 1
                 if use_quiet and v == lo_min32 and old != lo_min32:  # (a miss only lowers: the count only rises)
-                    nfree[b] += 1
-                    if nfree[b] == BLOCK_VOXELS:
+                    qi = quarter_of(off)
+                    nfree[b, qi] += 1
+                    if nfree[b, qi] == QUARTER_VOXELS:
                         changed[n_ch] = b
                         n_ch += 1
     tb_meta[0] = n_tb
@@ -477,7 +512,7 @@ def apply_voxels_kernel(
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
     phase, start, counters,
-    nfree, quiet, use_quiet, changed, ch_meta,
+    nfree, qquiet, use_quiet, changed, ch_meta,
 ):  # fmt: skip
     """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
@@ -487,13 +522,13 @@ def apply_voxels_kernel(
     ``hit_mark`` (O's ``hit`` channel: hit in this tick; the tick rules read and clear it).
     ``counters`` accumulates [hits applied, misses applied].
 
-    Quiet blocks (``use_quiet``): ``nfree[b]`` counts the voxels of O block b at ``lo_min``
-    (clamped free), kept here; ``quiet[b]`` (set by ``quiet_update`` between frames: all 512
-    voxels clamped free and no D block there) is read as it was when the frame began. A miss in
-    a quiet block is no update: its log-odds would stay at ``lo_min``, and the tick rules have
-    nothing to do for a clamped-free voxel without ST or LT, so it is neither stamped nor put in
-    the tick buffer. Blocks whose count reached or left 512 are appended to ``changed``
-    (``ch_meta[0]`` of them) for ``quiet_update``."""
+    Quiet quarters (``use_quiet``): ``nfree[b, q]`` counts the voxels of quarter q of O block b
+    at ``lo_min`` (clamped free), kept here; ``qquiet[b]`` (bit q set by ``quiet_update`` between
+    frames: the quarter's 64 voxels clamped free, none with ST or LT) is read as it was when the
+    frame began. A miss in a quiet quarter is no update: its log-odds would stay at ``lo_min``,
+    and the tick rules have nothing to do for a clamped-free voxel without ST or LT, so it is
+    neither stamped nor put in the tick buffer. Blocks of a quarter whose count reached or left
+    64 are appended to ``changed`` (``ch_meta[0]`` of them) for ``quiet_update``."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
@@ -506,7 +541,7 @@ def apply_voxels_kernel(
     last_by = np.int64(0)
     last_bz = np.int64(0)
     last_b = np.int64(-1)
-    last_q = False
+    last_qq = np.int64(0)
     while phase < 2:
         keys = hits if phase == 0 else misses
         lo = hit_lo32 if phase == 0 else miss_lo32
@@ -523,10 +558,12 @@ def apply_voxels_kernel(
                     ch_meta[0] = n_ch
                     counters[phase] += n_done
                     return STATUS_NEED_BLOCKS, phase, r
-                last_q = use_quiet and phase == 1 and quiet[last_b] != 0
-            if last_q:
+                last_qq = np.int64(qquiet[last_b]) if use_quiet and phase == 1 else np.int64(0)
+            if last_qq == QUIET_ALL:
                 continue
             off = voxel_offset(i, j, k)
+            if last_qq != 0 and (last_qq >> quarter_of(off)) & 1:
+                continue
             st = stamp[last_b, off]
             if st == frame_id:
                 continue
@@ -555,16 +592,17 @@ def apply_voxels_kernel(
             stamp[last_b, off] = frame_id
             n_done += 1
             if use_quiet and (old == lo_min32) != (v == lo_min32):
+                qi = quarter_of(off)
                 if v == lo_min32:
-                    nfree[last_b] += 1
-                    if nfree[last_b] == BLOCK_VOXELS:
+                    nfree[last_b, qi] += 1
+                    if nfree[last_b, qi] == QUARTER_VOXELS:
                         changed[n_ch] = last_b
                         n_ch += 1
                 else:
-                    if nfree[last_b] == BLOCK_VOXELS:
+                    if nfree[last_b, qi] == QUARTER_VOXELS:
                         changed[n_ch] = last_b
                         n_ch += 1
-                    nfree[last_b] -= 1
+                    nfree[last_b, qi] -= 1
         counters[phase] += n_done
         phase += 1
         start = 0
@@ -575,52 +613,82 @@ def apply_voxels_kernel(
 
 
 @njit(cache=True, nogil=True)
-def _no_st_lt(d_keys, d_vals, st, lt, bx, by, bz):
-    """No ST and no LT in block (bx, by, bz): no D block there, or one whose voxels all have ST
-    and LT 0 (something seen there once, a person walking through, and gone since)."""
-    db = find_block(d_keys, d_vals, bx, by, bz)
+def _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt):
+    """Of the quarters ``want`` (bits) of O block b, those quiet: all 64 voxels clamped free
+    (``nfree[b, q] == 64``) and none with ST or LT (no D block there, or its voxels' ST and LT 0
+    in that quarter: something seen there once, a person walking through, and gone since)."""
+    full = np.int64(0)
+    for q in range(8):
+        if (want >> q) & 1 and nfree[b, q] == QUARTER_VOXELS:
+            full |= np.int64(1) << q
+    if full == 0:
+        return full
+    db = find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1], block_coords[b, 2])
     if db < 0:
-        return True
-    for off in range(BLOCK_VOXELS):  # noqa: SIM110 (a loop numba compiles, no generator)
-        if st[db, off] != 0.0 or lt[db, off] != 0.0:
-            return False
-    return True
+        return full
+    for q in range(8):
+        if not (full >> q) & 1:
+            continue
+        a0, c0, e0 = (q >> 2) * 4, ((q >> 1) & 1) * 4, (q & 1) * 4
+        clear = True
+        for a in range(a0, a0 + 4):
+            for c in range(c0, c0 + 4):
+                base = a * 64 + c * 8 + e0
+                for e in range(4):
+                    if st[db, base + e] != 0.0 or lt[db, base + e] != 0.0:
+                        clear = False
+        if not clear:
+            full &= ~(np.int64(1) << q)
+    return full
 
 
 @njit(cache=True, nogil=True)
-def quiet_update(blocks, n, nfree, quiet, block_coords, d_keys, d_vals, st, lt):
-    """Set ``quiet[b]`` for the O blocks ``blocks[:n]``: all 512 voxels clamped free
-    (``nfree[b] == 512``) and no ST or LT in the block (``_no_st_lt``)."""
+def quiet_update(blocks, n, nfree, qquiet, quiet, block_coords, d_keys, d_vals, st, lt):
+    """Set the quiet quarters ``qquiet[b]`` (``_quiet_quarters``) and the quiet flag ``quiet[b]``
+    (all eight quarters quiet) of the O blocks ``blocks[:n]``."""
     for t in range(n):
         b = blocks[t]
-        q = nfree[b] == BLOCK_VOXELS and _no_st_lt(d_keys, d_vals, st, lt, block_coords[b, 0], block_coords[b, 1],
-                                                    block_coords[b, 2])  # fmt: skip
-        quiet[b] = 1 if q else 0
+        qq = _quiet_quarters(b, QUIET_ALL, nfree, block_coords, d_keys, d_vals, st, lt)
+        qquiet[b] = qq
+        quiet[b] = 1 if qq == QUIET_ALL else 0
 
 
 @njit(cache=True, nogil=True)
-def quiet_after_tick(n_blocks, nfree, quiet, block_coords, d_keys, d_vals, st, lt):
-    """After a tick: the O blocks all clamped free that were not quiet for their ST or LT and
-    have none left (the tick rules lowered them to 0) are quiet. Returns how many became so."""
+def quiet_after_tick(n_blocks, nfree, qquiet, quiet, block_coords, d_keys, d_vals, st, lt):
+    """After a tick: the quarters all clamped free that were not quiet for their ST or LT and
+    have none left (the tick rules lowered them to 0) are quiet (a quiet quarter stays so: the
+    tick rules do nothing there). Returns how many blocks gained quiet quarters."""
     n = 0
     for b in range(n_blocks):
-        if quiet[b] == 0 and nfree[b] == BLOCK_VOXELS and _no_st_lt(d_keys, d_vals, st, lt, block_coords[b, 0],
-                                                                    block_coords[b, 1], block_coords[b, 2]):  # fmt: skip
-            quiet[b] = 1
+        qq = np.int64(qquiet[b])
+        if qq == QUIET_ALL:
+            continue
+        want = QUIET_ALL & ~qq
+        for q in range(8):
+            if (want >> q) & 1 and nfree[b, q] != QUARTER_VOXELS:
+                want &= ~(np.int64(1) << q)
+        if want == 0:
+            continue
+        got = _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt)
+        if got != 0:
+            qq |= got
+            qquiet[b] = qq
+            quiet[b] = 1 if qq == QUIET_ALL else 0
             n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
 def quiet_count(logodds, n_blocks, lo_min, nfree):
-    """``nfree[b]``: voxels of block b at ``lo_min``, for the first ``n_blocks`` blocks."""
+    """``nfree[b, q]``: voxels of quarter q of block b at ``lo_min``, for the first ``n_blocks``
+    blocks."""
     lo32 = np.float32(lo_min)
     for b in range(n_blocks):
-        c = 0
+        for q in range(8):
+            nfree[b, q] = 0
         for off in range(BLOCK_VOXELS):
             if logodds[b, off] == lo32:
-                c += 1
-        nfree[b] = c
+                nfree[b, quarter_of(off)] += 1
 
 
 # the dedupe key of an invalid pixel (and an empty slot of the dedupe set): never a voxel's, whose

@@ -79,8 +79,9 @@ def warm_maps(cfg: MapConfig) -> None:
     m.end_tick()
     # the quiet blocks' check after a tick (the rays group's apply_voxels makes their record)
     o, d, q = m.O, m.D, _QuietBlocks
-    raycast.quiet_after_tick(o.n_blocks, np.zeros(o.max_blocks, dtype=q.NFREE), np.zeros(o.max_blocks, dtype=q.FLAG),
-                             o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
+    flags = np.zeros(o.max_blocks, dtype=q.FLAG)
+    raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), flags, flags, o.block_coords,
+                             d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
