@@ -549,3 +549,80 @@ def test_rim_pixels_stand_for_rays_through_the_voxel(far_from, miss):
     off = voxel_offset(0, 0, k0)
     word = blocks.get(pack_block(0, 0, k0 >> 3), np.zeros(8, dtype=np.uint64))[off >> 6]
     assert bool((int(word) >> (off & 63)) & 1) == miss
+
+
+def _mask_voxels(keys, masks) -> set:
+    """The voxel keys (i, j, k) a list of blocks' masks holds, decoded here by hand."""
+    out = set()
+    for key, mask in zip(keys, masks):
+        bx, by, bz = (int(key) >> 42) - (1 << 20), ((int(key) >> 21) & ((1 << 21) - 1)) - (1 << 20), \
+            (int(key) & ((1 << 21) - 1)) - (1 << 20)  # fmt: skip
+        for off in range(512):
+            if int(mask[off >> 6]) >> (off & 63) & 1:
+                out.add((bx * 8 + (off >> 6), by * 8 + ((off >> 3) & 7), bz * 8 + (off & 7)))
+    return out
+
+
+def test_tail_misses_join_the_projection_masks_by_hand():
+    """``with_listed_misses``: the voxels of a list set in their blocks' masks, new blocks added in
+    key order, blocks of both the union; a voxel outside the frame's box refuses (the caller
+    keeps the list). ``merge_masks``: the union of two sorted lists."""
+    from ltmap_cli.core.grid import pack_blocks
+    from ltmap_cli.core.projective import merge_masks, with_listed_misses
+
+    box = np.array([-16, 0, 0, 23, 15, 7], dtype=np.int64)  # blocks x -2..2, y 0..1, z 0
+    pkeys = pack_blocks(np.array([[-1, 0, 0], [1, 1, 0]], dtype=np.int64))
+    order = np.argsort(pkeys)
+    pkeys = pkeys[order]
+    pmasks = np.zeros((2, 8), dtype=np.uint64)
+    pmasks[0, 0], pmasks[1, 7] = 1, 1 << 63
+    before = _mask_voxels(pkeys, pmasks)
+    listed = [(-8, 0, 0), (-8, 0, 1), (20, 3, 7), (9, 15, 7), (-16, 9, 2), (20, 3, 7)]
+    keys, masks, ok = with_listed_misses(pkeys, pmasks, pack_blocks(np.array(listed, dtype=np.int64)), box)
+    assert ok
+    assert np.all(np.diff(keys) > 0) and len(keys) == 4  # (-1,0,0) and (1,1,0), and new: (2,0,0), (-2,1,0)
+    assert _mask_voxels(keys, masks) == before | set(listed)
+    _, _, ok = with_listed_misses(pkeys, pmasks, pack_blocks(np.array([[24, 0, 0]], dtype=np.int64)), box)
+    assert not ok
+    k2, m2 = merge_masks(pkeys, pmasks, keys[1:3], masks[1:3])
+    assert np.all(np.diff(k2) > 0)
+    assert _mask_voxels(k2, m2) == before | _mask_voxels(keys[1:3], masks[1:3])
+
+
+def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):
+    """The rays' tails' misses applied block by block with the projection's masks give the map
+    of applying them as a list: O's log-odds and stamps, D's voxels (by their blocks'
+    coordinates: voxels are updated, and so blocks made and voxels put in the tick buffer, in
+    another order) and the same events, over a wall, a box coming and going, and ticks."""
+    import ltmap_cli.core.layers as layers_mod
+
+    box = _wall()
+    box[40:80, 60:100] = 1500
+    seq = [_wall()] * 6 + [box] * 8 + [_wall()] * 10
+    out = {}
+    for how in ("masks", "list"):
+        monkeypatch.setattr(layers_mod, "LISTED_MISSES_MAX_BLOCKS", 1 << 18 if how == "masks" else 0)
+        m = _map()
+        listed = 0
+        for f, depth in enumerate(seq):
+            T = np.ascontiguousarray(POSE)
+            ends, kind = m.depth_rays(depth, F, F, CX, CY, T, 8.0)
+            hits, misses, p = m.depth_voxels(depth, F, F, CX, CY, T, 8.0, ends, kind)
+            listed += len(misses)
+            m.apply_voxels(hits, misses, int((kind > 0).sum()), p)
+            if f % 3 == 2:
+                m.end_tick()
+        out[how] = (m, listed)
+    (a, na), (b, nb) = out["masks"], out["list"]
+    assert na == 0 and nb > 1000  # the tails' misses: none listed, then all
+    for layer in ("O", "D"):
+        ga, gb = getattr(a, layer), getattr(b, layer)
+        ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}
+        ib = {tuple(c): i for i, c in enumerate(gb.block_coords[: gb.n_blocks])}
+        assert ia.keys() == ib.keys() and len(ia) > 0
+        for ch in ga.data:
+            for c, i in ia.items():
+                assert np.array_equal(ga.data[ch][i], gb.data[ch][ib[c]]), (layer, ch)
+    assert a.D.channel("st").max() > 0  # the box's obstacle reached ST
+    ta, tb = a.events.transitions, b.events.transitions
+    assert len(ta) == len(tb)

@@ -40,13 +40,16 @@ from .grid import (
     voxel_offset,
 )
 from .projective import (
+    LISTED_MISSES_MAX_BLOCKS,
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
+    merge_masks,
     projective_blocks,
     projective_fill,
     quiet_keys_in_box,
     stale_skips,
+    with_listed_misses,
 )
 from .raycast import (
     DEPTH_CAP_MIN,
@@ -886,12 +889,20 @@ class LayeredMap:
                      max_range: float, ends: np.ndarray, kind: np.ndarray):
         """The cast half of a depth image whose rays are (``ends``, ``kind``), by
         ``map.sensor.depth_integration``: (hits, misses, projection) for ``apply_voxels``; exact:
-        whole rays, no projection; projective: the rays' tails and ``depth_projection``. Reads no
-        map state (a worker thread's part)."""
+        whole rays, no projection; projective: the rays' tails and ``depth_projection``, the
+        tails' misses put in the projection's block masks (``with_listed_misses``; kept as a list
+        only in a box of more than ``LISTED_MISSES_MAX_BLOCKS`` blocks). Reads no map state (a
+        worker thread's part)."""
         if self.cfg.sensor.depth_integration != "projective":
             return (*self.frame_voxels(T[:3, 3], ends, kind), None)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
-        return (*self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail()), projection)
+        hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
+        box = projection.box
+        if len(misses) and int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_MISSES_MAX_BLOCKS:
+            keys, masks, ok = with_listed_misses(projection.keys, projection.masks, misses, box)
+            if ok:
+                return hits, misses[:0], projection._replace(keys=keys, masks=masks)
+        return hits, misses, projection
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
         """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(frame_voxels(...))``."""
@@ -988,9 +999,10 @@ class LayeredMap:
         n = projective_fill(*projection.fill, stale, keys, masks)
         if not n:
             return projection
-        keys = np.concatenate([projection.keys, keys[:n]])
-        order = np.argsort(keys, kind="stable")
-        return DepthProjection(keys[order], np.concatenate([projection.masks, masks[:n]])[order], projection.box)
+        # (a block skipped as quiet may hold tail misses already: one entry, the union of its bits)
+        order = np.argsort(keys[:n], kind="stable")
+        keys, masks = merge_masks(projection.keys, projection.masks, keys[order], masks[order])
+        return DepthProjection(keys, masks, projection.box)
 
     def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
         """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,

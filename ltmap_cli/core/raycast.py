@@ -646,9 +646,10 @@ def _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt):
 def quiet_update(blocks, n, nfree, qquiet, quiet, block_coords, d_keys, d_vals, st, lt):
     """Set the quiet quarters ``qquiet[b]`` (``_quiet_quarters``) and the quiet flag ``quiet[b]``
     (all eight quarters quiet) of the O blocks ``blocks[:n]``."""
+    every = np.int64(QUIET_ALL)  # (not the literal: numba would compile _quiet_quarters once more for it)
     for t in range(n):
         b = blocks[t]
-        qq = _quiet_quarters(b, QUIET_ALL, nfree, block_coords, d_keys, d_vals, st, lt)
+        qq = _quiet_quarters(b, every, nfree, block_coords, d_keys, d_vals, st, lt)
         qquiet[b] = qq
         quiet[b] = 1 if qq == QUIET_ALL else 0
 

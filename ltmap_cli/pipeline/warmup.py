@@ -41,7 +41,7 @@ from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import quiet_keys_in_box
+from ..core.projective import merge_masks, quiet_keys_in_box, with_listed_misses
 from ..core.sensors import transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -122,11 +122,16 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "p
         return
     ends = np.array([[-0.5, -0.5, 2.0], [0.5, -0.5, 2.0], [-0.5, 0.5, 2.0], [0.5, 0.5, 2.0]])  # (depth_rays' for them)
     none = np.empty(0, dtype=np.int64)
-    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
+    p = m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends)
+    # the tails' misses put in the projection's masks (LayeredMap.depth_voxels)
+    with_listed_misses(p.keys, p.masks, pack_blocks(np.zeros((1, 3), dtype=np.int64)), p.box)
+    m.apply_voxels(none, none, 0, p)
     # the map thread's fill of blocks a worker skipped as quiet that are quiet no more: every
     # block listed as quiet, none is
     m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
-    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
+    p = m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends)
+    m.apply_voxels(none, none, 0, p)
+    merge_masks(p.keys, p.masks, p.keys, p.masks)  # (what the fill does when the fill is not empty)
     # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
     quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().quiet)
 
