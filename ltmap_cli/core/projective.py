@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
+from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -550,14 +550,20 @@ def with_listed_misses(pkeys, pmasks, misses, box):
         for w in range(8):
             masks[t, w] = pmasks[t, w]
     m = n
+    # a packed voxel key without its 3 low bits per axis names its block (the offset 2^20 is a
+    # multiple of 8): the key's block is worked out again only where it changes (a tail's misses
+    # run through a few blocks), and a voxel's offset and bit come from the key's bits
+    same_block = ~np.int64(BLOCK - 1 | (BLOCK - 1) << 21 | (BLOCK - 1) << 42)
     last, s = np.int64(-1), np.int64(-1)
     for r in range(misses.shape[0]):
-        i, j, k = unpack_block(misses[r])
-        bi, bj, bk = i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS
-        if not (bi0 <= bi <= bi1 and bj0 <= bj <= bj1 and bk0 <= bk <= bk1):
-            return keys[:0], masks[:0], False
-        idx = ((bi - bi0) * nbj + (bj - bj0)) * nbk + (bk - bk0)
-        if idx != last:
+        key = misses[r]
+        kb = key & same_block
+        if kb != last:
+            i, j, k = unpack_block(key)
+            bi, bj, bk = i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS
+            if not (bi0 <= bi <= bi1 and bj0 <= bj <= bj1 and bk0 <= bk <= bk1):
+                return keys[:0], masks[:0], False
+            idx = ((bi - bi0) * nbj + (bj - bj0)) * nbk + (bk - bk0)
             s = np.int64(slot[idx])
             if s < 0:
                 s = m
@@ -566,9 +572,9 @@ def with_listed_misses(pkeys, pmasks, misses, box):
                 for w in range(8):
                     masks[m, w] = 0
                 m += 1
-            last = idx
-        off = voxel_offset(i, j, k)
-        masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+            last = kb
+        # voxel_offset from the key: x's 3 low bits (bits 42-44) are the mask's word, y's and z's its bit
+        masks[s, (key >> 42) & 7] |= np.uint64(1) << np.uint64(((key >> 18) & 56) | (key & 7))
     if m == n:
         return keys[:m], masks[:m], True
     order = np.argsort(keys[:m], kind="mergesort")

@@ -85,6 +85,12 @@ def _quarter_keep() -> np.ndarray:
 QUARTER_KEEP = _quarter_keep()
 
 
+# the index of a 64-bit word's only set bit: _DEBRUIJN_BIT[(bit * _DEBRUIJN) >> 58]
+_DEBRUIJN = np.uint64(0x03F79D71B4CB0A89)
+_DEBRUIJN_BIT = np.zeros(64, dtype=np.int64)
+_DEBRUIJN_BIT[[((int(_DEBRUIJN) << b) & (2**64 - 1)) >> 58 for b in range(64)]] = np.arange(64)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def quarter_of(off):
     """The quarter (0..7) of the voxel at offset ``off`` in its block (``voxel_offset``)."""
@@ -473,13 +479,10 @@ def apply_mask_misses(
             word = masks[t, wd]
             if qq != 0:
                 word &= QUARTER_KEEP[(qq >> ((wd >> 2) << 2)) & 15]
-            off = wd * 64 - 1
-            while word != 0:
-                off += 1
-                set_ = (word & np.uint64(1)) != 0
-                word >>= np.uint64(1)
-                if not set_:
-                    continue
+            while word != 0:  # the set bits, lowest first: each found by a de Bruijn multiply
+                low = word & (~word + np.uint64(1))
+                word ^= low
+                off = wd * 64 + _DEBRUIJN_BIT[(low * _DEBRUIJN) >> np.uint64(58)]
                 st = stamp[b, off]
                 if st == frame_id:
                     continue
