@@ -566,9 +566,9 @@ def _mask_voxels(keys, masks) -> set:
 def test_tail_misses_join_the_projection_masks_by_hand():
     """``with_listed_misses``: the voxels of a list set in their blocks' masks, new blocks added in
     key order, blocks of both the union; a voxel outside the frame's box refuses (the caller
-    keeps the list). ``merge_masks``: the union of two sorted lists."""
+    keeps the list)."""
     from ltmap_cli.core.grid import pack_blocks
-    from ltmap_cli.core.projective import merge_masks, with_listed_misses
+    from ltmap_cli.core.projective import with_listed_misses
 
     box = np.array([-16, 0, 0, 23, 15, 7], dtype=np.int64)  # blocks x -2..2, y 0..1, z 0
     pkeys = pack_blocks(np.array([[-1, 0, 0], [1, 1, 0]], dtype=np.int64))
@@ -584,9 +584,6 @@ def test_tail_misses_join_the_projection_masks_by_hand():
     assert _mask_voxels(keys, masks) == before | set(listed)
     _, _, ok = with_listed_misses(pkeys, pmasks, pack_blocks(np.array([[24, 0, 0]], dtype=np.int64)), box)
     assert not ok
-    k2, m2 = merge_masks(pkeys, pmasks, keys[1:3], masks[1:3])
-    assert np.all(np.diff(k2) > 0)
-    assert _mask_voxels(k2, m2) == before | _mask_voxels(keys[1:3], masks[1:3])
 
 
 def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):

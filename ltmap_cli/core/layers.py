@@ -44,7 +44,6 @@ from .projective import (
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
-    merge_masks,
     projective_blocks,
     projective_fill,
     quiet_keys_in_box,
@@ -999,10 +998,14 @@ class LayeredMap:
         n = projective_fill(*projection.fill, stale, keys, masks)
         if not n:
             return projection
-        # (a block skipped as quiet may hold tail misses already: one entry, the union of its bits)
-        order = np.argsort(keys[:n], kind="stable")
-        keys, masks = merge_masks(projection.keys, projection.masks, keys[order], masks[order])
-        return DepthProjection(keys, masks, projection.box)
+        keys = np.concatenate([projection.keys, keys[:n]])
+        masks = np.concatenate([projection.masks, masks[:n]])
+        order = np.argsort(keys, kind="stable")
+        keys, masks = keys[order], masks[order]
+        # a block skipped as quiet may hold tail misses already (depth_voxels): one entry, the
+        # union of its bits (numpy: a rare path, the threads' only, and no kernel to compile)
+        first = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
+        return DepthProjection(keys[first], np.bitwise_or.reduceat(masks, first, axis=0), projection.box)
 
     def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
         """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,

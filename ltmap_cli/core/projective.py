@@ -536,7 +536,9 @@ def with_listed_misses(pkeys, pmasks, misses, box):
     bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
     nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
     nb = (bi1 - bi0 + 1) * nbj * nbk
-    slot = np.full(nb, -1, dtype=np.int32)
+    slot = np.empty(nb, dtype=np.int32)
+    for t in range(nb):
+        slot[t] = -1
     n = pkeys.shape[0]
     cap = n + min(misses.shape[0], nb)
     keys = np.empty(cap, dtype=np.int64)
@@ -577,36 +579,20 @@ def with_listed_misses(pkeys, pmasks, misses, box):
         masks[s, (key >> 42) & 7] |= np.uint64(1) << np.uint64(((key >> 18) & 56) | (key & 7))
     if m == n:
         return keys[:m], masks[:m], True
-    order = np.argsort(keys[:m], kind="mergesort")
-    return keys[order], masks[order], True
-
-
-@njit(cache=True, nogil=True)
-def merge_masks(ka, ma, kb, mb):
-    """Two blocks' mask lists, keys ascending, as one (keys ascending, masks): a block in both
-    takes the union of its bits."""
-    keys = np.empty(ka.shape[0] + kb.shape[0], dtype=np.int64)
-    masks = np.empty((keys.shape[0], 8), dtype=np.uint64)
-    a = b = n = 0
-    while a < ka.shape[0] or b < kb.shape[0]:
-        if b == kb.shape[0] or (a < ka.shape[0] and ka[a] < kb[b]):
-            keys[n] = ka[a]
-            for w in range(8):
-                masks[n, w] = ma[a, w]
-            a += 1
-        elif a == ka.shape[0] or kb[b] < ka[a]:
-            keys[n] = kb[b]
-            for w in range(8):
-                masks[n, w] = mb[b, w]
-            b += 1
-        else:
-            keys[n] = ka[a]
-            for w in range(8):
-                masks[n, w] = ma[a, w] | mb[b, w]
-            a += 1
-            b += 1
-        n += 1
-    return keys[:n], masks[:n]
+    # in key order: the box's blocks in x, y, z order are (``pack_block``'s order; no sort: numba's
+    # argsort took 2 s of a first run's compiling)
+    out_keys = np.empty(m, dtype=np.int64)
+    out_masks = np.empty((m, 8), dtype=np.uint64)
+    t = 0
+    for idx in range(nb):
+        o = slot[idx]
+        if o < 0:
+            continue
+        out_keys[t] = keys[o]
+        for w in range(8):
+            out_masks[t, w] = masks[o, w]
+        t += 1
+    return out_keys, out_masks, True
 
 
 @njit(cache=True, nogil=True)

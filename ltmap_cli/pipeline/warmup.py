@@ -41,7 +41,7 @@ from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import merge_masks, quiet_keys_in_box, with_listed_misses
+from ..core.projective import quiet_keys_in_box, with_listed_misses
 from ..core.sensors import transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -82,6 +82,10 @@ def warm_maps(cfg: MapConfig) -> None:
     flags = np.zeros(o.max_blocks, dtype=q.FLAG)
     raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), flags, flags, o.block_coords,
                              d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
+    # the tails' misses put in the projection's masks (LayeredMap.depth_voxels): here, not in
+    # the projective16 group, the first run's longest (it takes no pixels)
+    keys = pack_blocks(np.zeros((1, 3), dtype=np.int64))
+    with_listed_misses(keys, np.zeros((1, 8), dtype=np.uint64), keys.copy(), np.array([0, 0, 0, 7, 7, 7]))
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
@@ -122,16 +126,11 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "p
         return
     ends = np.array([[-0.5, -0.5, 2.0], [0.5, -0.5, 2.0], [-0.5, 0.5, 2.0], [0.5, 0.5, 2.0]])  # (depth_rays' for them)
     none = np.empty(0, dtype=np.int64)
-    p = m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends)
-    # the tails' misses put in the projection's masks (LayeredMap.depth_voxels)
-    with_listed_misses(p.keys, p.masks, pack_blocks(np.zeros((1, 3), dtype=np.int64)), p.box)
-    m.apply_voxels(none, none, 0, p)
+    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
     # the map thread's fill of blocks a worker skipped as quiet that are quiet no more: every
     # block listed as quiet, none is
     m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
-    p = m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends)
-    m.apply_voxels(none, none, 0, p)
-    merge_masks(p.keys, p.masks, p.keys, p.masks)  # (what the fill does when the fill is not empty)
+    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
     # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
     quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().quiet)
 
