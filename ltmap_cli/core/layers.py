@@ -956,18 +956,19 @@ class LayeredMap:
         """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's
         stateful half, in the thread that owns the map.
 
-        Quiet blocks (``quiet_blocks``, default on): an O block all of whose 512 voxels are
-        clamped free (log-odds at ``clamp_min_logodds``) and that has no ST or LT anywhere in it
-        (no D block, or one whose ST and LT the tick rules brought back to 0) is quiet. A miss
-        there changes nothing: the log-odds stay clamped, and the
-        tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a block that
-        is quiet when the frame begins is skipped whole: the voxel is not stamped again (its stamp
+        Quiet quarters and blocks (``quiet_blocks``, default on): a 4 x 4 x 4 quarter of an O
+        block all of whose 64 voxels are clamped free (log-odds at ``clamp_min_logodds``) and
+        that has no ST or LT anywhere in it (no D block, or one whose ST and LT the tick rules
+        brought back to 0) is quiet; a block whose eight quarters are is quiet (the workers'
+        projection skips it). A miss there changes nothing: the log-odds stay clamped, and the
+        tick rules do nothing for a clamped-free voxel without ST or LT. So a miss in a quarter
+        that is quiet when the frame begins is skipped: the voxel is not stamped again (its stamp
         stays that of the frame that clamped it) nor put in the tick buffer. O's log-odds, each D
         voxel's values and the events are those of updating every voxel; those stamps differ (a
         voxel is known, stamp > 0, exactly when it is either way), and D's blocks may be stored in
         another order (a voxel skipped, then hit enough times in the same tick to be an obstacle,
         enters the tick buffer later, so its D block is made later: the office bench scene's
-        person). A hit un-quiets its block from the next frame on. Decided here, in frame order,
+        person). A hit un-quiets its quarter from the next frame on. Decided here, in frame order,
         so every path (serial, threads) gives the same map bit for bit."""
         q = self._quiet_sync()
         self.frame_id += 1

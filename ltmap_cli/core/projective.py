@@ -12,8 +12,9 @@ With ``map.sensor.depth_integration: projective`` a depth frame is integrated in
   that pixel's range minus ``band``, or one of the pixels at the rim of its projection is, is a
   miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). It reads no map
   state, so the worker threads run it; the thread that owns the map applies the blocks' masks
-  in frame order (``core.raycast.apply_mask_misses``), skipping quiet O blocks (all clamped free,
-  no ST or LT: a miss there changes nothing).
+  in frame order (``core.raycast.apply_mask_misses``), the tails' misses set in them too
+  (``with_listed_misses``), skipping quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
+  free, no ST or LT: a miss there changes nothing).
 
 It differs from the exact traversal only in free space farther than ``band`` from a return
 (voxels a ray passes but whose centre and rim project onto nearer pixels, voxels beyond the
