@@ -564,11 +564,11 @@ def _mask_voxels(keys, masks) -> set:
 
 
 def test_tail_misses_join_the_projection_masks_by_hand():
-    """``with_listed_misses``: the voxels of a list set in their blocks' masks, new blocks added in
+    """``with_listed_voxels``: the voxels of a list set in their blocks' masks, new blocks added in
     key order, blocks of both the union; a voxel outside the frame's box refuses (the caller
     keeps the list)."""
     from ltmap_cli.core.grid import pack_blocks
-    from ltmap_cli.core.projective import with_listed_misses
+    from ltmap_cli.core.projective import with_listed_voxels
 
     box = np.array([-16, 0, 0, 23, 15, 7], dtype=np.int64)  # blocks x -2..2, y 0..1, z 0
     pkeys = pack_blocks(np.array([[-1, 0, 0], [1, 1, 0]], dtype=np.int64))
@@ -578,17 +578,17 @@ def test_tail_misses_join_the_projection_masks_by_hand():
     pmasks[0, 0], pmasks[1, 7] = 1, 1 << 63
     before = _mask_voxels(pkeys, pmasks)
     listed = [(-8, 0, 0), (-8, 0, 1), (20, 3, 7), (9, 15, 7), (-16, 9, 2), (20, 3, 7)]
-    keys, masks, ok = with_listed_misses(pkeys, pmasks, pack_blocks(np.array(listed, dtype=np.int64)), box)
+    keys, masks, ok = with_listed_voxels(pkeys, pmasks, pack_blocks(np.array(listed, dtype=np.int64)), box)
     assert ok
     assert np.all(np.diff(keys) > 0) and len(keys) == 4  # (-1,0,0) and (1,1,0), and new: (2,0,0), (-2,1,0)
     assert _mask_voxels(keys, masks) == before | set(listed)
-    _, _, ok = with_listed_misses(pkeys, pmasks, pack_blocks(np.array([[24, 0, 0]], dtype=np.int64)), box)
+    _, _, ok = with_listed_voxels(pkeys, pmasks, pack_blocks(np.array([[24, 0, 0]], dtype=np.int64)), box)
     assert not ok
 
 
 def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):
-    """The rays' tails' misses applied block by block with the projection's masks give the map
-    of applying them as a list: O's log-odds and stamps, D's voxels (by their blocks'
+    """The rays' tails' misses applied block by block with the projection's masks, and the hits
+    by masks of their own, give the map of applying them as lists: O's log-odds and stamps, D's voxels (by their blocks'
     coordinates: voxels are updated, and so blocks made and voxels put in the tick buffer, in
     another order) and the same events, over a wall, a box coming and going, and ticks."""
     import ltmap_cli.core.layers as layers_mod
@@ -605,13 +605,13 @@ def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):
             T = np.ascontiguousarray(POSE)
             ends, kind = m.depth_rays(depth, F, F, CX, CY, T, 8.0)
             hits, misses, p = m.depth_voxels(depth, F, F, CX, CY, T, 8.0, ends, kind)
-            listed += len(misses)
+            listed += len(misses) + len(hits)
             m.apply_voxels(hits, misses, int((kind > 0).sum()), p)
             if f % 3 == 2:
                 m.end_tick()
         out[how] = (m, listed)
     (a, na), (b, nb) = out["masks"], out["list"]
-    assert na == 0 and nb > 1000  # the tails' misses: none listed, then all
+    assert na == 0 and nb > 1000  # the tails' misses and the hits: none listed, then all
     for layer in ("O", "D"):
         ga, gb = getattr(a, layer), getattr(b, layer)
         ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}

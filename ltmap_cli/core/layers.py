@@ -48,7 +48,7 @@ from .projective import (
     projective_fill,
     quiet_keys_in_box,
     stale_skips,
-    with_listed_misses,
+    with_listed_voxels,
 )
 from .raycast import (
     DEPTH_CAP_MIN,
@@ -72,7 +72,7 @@ from .raycast import (
     STATUS_DONE,
     STATUS_NEED_BLOCKS,
     STATUS_NEED_CHANGED,
-    apply_mask_misses,
+    apply_mask_updates,
     apply_voxels_kernel,
     classify_rays,
     dedupe_endpoints,
@@ -657,6 +657,7 @@ class DepthProjection(NamedTuple):
     box: np.ndarray | None = None  # (6,) int64: the frame's voxel box (ends_box)
     skipped: np.ndarray | None = None  # (m,) int64: numbers in the box of blocks left as quiet
     fill: tuple | None = None  # projective_fill's arguments before ``blocks``
+    hits: tuple | None = None  # (keys, masks) as keys and masks: the frame's hits, when not listed
 
 
 def _depth_view(depth: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -889,17 +890,20 @@ class LayeredMap:
         """The cast half of a depth image whose rays are (``ends``, ``kind``), by
         ``map.sensor.depth_integration``: (hits, misses, projection) for ``apply_voxels``; exact:
         whole rays, no projection; projective: the rays' tails and ``depth_projection``, the
-        tails' misses put in the projection's block masks (``with_listed_misses``; kept as a list
-        only in a box of more than ``LISTED_MISSES_MAX_BLOCKS`` blocks). Reads no map state (a
-        worker thread's part)."""
+        tails' misses put in the projection's block masks and the hits in masks of their own
+        (``with_listed_voxels``; kept as lists only in a box of more than
+        ``LISTED_MISSES_MAX_BLOCKS`` blocks). Reads no map state (a worker thread's part)."""
         if self.cfg.sensor.depth_integration != "projective":
             return (*self.frame_voxels(T[:3, 3], ends, kind), None)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
         hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
         box = projection.box
         if len(misses) and int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_MISSES_MAX_BLOCKS:
-            keys, masks, ok = with_listed_misses(projection.keys, projection.masks, misses, box)
+            keys, masks, ok = with_listed_voxels(projection.keys, projection.masks, misses, box)
             if ok:
+                hk, hm, ok = with_listed_voxels(projection.keys[:0], projection.masks[:0], hits, box)
+                if ok:
+                    return hits[:0], misses[:0], projection._replace(keys=keys, masks=masks, hits=(hk, hm))
                 return hits, misses[:0], projection._replace(keys=keys, masks=masks)
         return hits, misses, projection
 
@@ -974,6 +978,8 @@ class LayeredMap:
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         q.ch_meta[0] = 0
+        if projection is not None and projection.hits is not None:  # the frame's hits as block masks
+            self._apply_masks(q, *projection.hits, counters, hit=True)
         if len(hits) or len(misses):  # (none: nothing to do, and a first run's projective16 warm-up
             self._apply(q, hits, misses, 0, counters)  # group leaves this kernel to the rays group)
         if projection is not None and projection.skipped is not None:  # blocks a worker took as quiet
@@ -1052,18 +1058,19 @@ class LayeredMap:
                 break
             self._grow_for(status, q)
 
-    def _apply_masks(self, q: _QuietBlocks, keys: np.ndarray, masks: np.ndarray, counters: np.ndarray) -> None:
-        """``apply_mask_misses``: the projection's misses, the blocks' masks applied as their
-        voxels listed in key order would be, growing storage as it asks."""
+    def _apply_masks(self, q: _QuietBlocks, keys: np.ndarray, masks: np.ndarray, counters: np.ndarray,
+                     hit: bool = False) -> None:
+        """``apply_mask_updates``: the projection's misses (or the hits of ``hit``), the blocks'
+        masks applied as their voxels listed in key order would be, growing storage as it asks."""
         sc = self.cfg.sensor
         start = 0
         while True:
             o = self.O
-            status, start = apply_mask_misses(
-                keys, masks, start,
-                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"],
+            status, start = apply_mask_updates(
+                keys, masks, start, hit,
+                o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
-                sc.miss_logodds, sc.clamp_min_logodds, counters,
+                sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds, counters,
                 q.nfree, q.qquiet, self.quiet_blocks, q.changed, q.ch_meta,
             )  # fmt: skip
             if status == STATUS_DONE:

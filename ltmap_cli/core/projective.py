@@ -12,8 +12,8 @@ With ``map.sensor.depth_integration: projective`` a depth frame is integrated in
   that pixel's range minus ``band``, or one of the pixels at the rim of its projection is, is a
   miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). It reads no map
   state, so the worker threads run it; the thread that owns the map applies the blocks' masks
-  in frame order (``core.raycast.apply_mask_misses``), the tails' misses set in them too
-  (``with_listed_misses``), skipping quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
+  in frame order (``core.raycast.apply_mask_updates``), the tails' misses set in them too
+  (``with_listed_voxels``), skipping quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
   free, no ST or LT: a miss there changes nothing).
 
 It differs from the exact traversal only in free space farther than ``band`` from a return
@@ -517,18 +517,19 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
 
 
-# a frame box of more blocks keeps its tails' misses as a list (with_listed_misses' table of the
+# a frame box of more blocks keeps its tails' misses as a list (with_listed_voxels' table of the
 # box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
 LISTED_MISSES_MAX_BLOCKS = 1 << 18
 
 
 @njit(cache=True, nogil=True)
-def with_listed_misses(pkeys, pmasks, misses, box):
+def with_listed_voxels(pkeys, pmasks, misses, box):
     """The projection's blocks (``pkeys`` ascending, ``pmasks``) with the voxels ``misses``
-    (packed voxel keys: the rays' tails, ``core.raycast.frame_voxels``) set in their blocks'
+    (packed voxel keys: the rays' tails' misses, ``core.raycast.frame_voxels``; or, with no
+    blocks given, the frame's hits) set in their blocks'
     masks: (keys ascending, masks, True); (empty, empty, False) when a block lies outside the
     frame's voxel box ``box``. The map thread then applies a frame's misses block by block
-    (``apply_mask_misses``: no hash lookup per voxel, quiet quarters dropped a word at a time),
+    (``apply_mask_updates``: no hash lookup per voxel, quiet quarters dropped a word at a time),
     not the tails' misses one key at a time (the room bench log: 37 k tail misses a frame,
     two thirds of the map thread's list). A block's voxels are updated in offset order instead
     of the rays' order: each voxel still once a frame, after the frame's hits, with the same

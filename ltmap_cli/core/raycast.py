@@ -434,26 +434,28 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
 
 
 @njit(cache=True, nogil=True)
-def apply_mask_misses(
-    bkeys, masks, start,
-    table_keys, table_vals, block_coords, meta, logodds, stamp,
+def apply_mask_updates(
+    bkeys, masks, start, hit,
+    table_keys, table_vals, block_coords, meta, logodds, stamp, hit_mark,
     frame_id, tick_first, tb_block, tb_off, tb_meta,
-    miss_lo, lo_min, counters,
+    hit_lo, miss_lo, lo_min, lo_max, counters,
     nfree, qquiet, use_quiet, changed, ch_meta,
 ):  # fmt: skip
-    """The misses of blocks given as bit masks (``bkeys`` packed block keys, ``masks`` (B, 8)
-    uint64: bit ``off`` of a block's 512, in key order, offsets ascending): what
-    ``apply_voxels_kernel`` does with those voxels listed as keys in that order (phase 1), the
-    same updates in the same order, block by block without listing them (a depth frame's
-    projection: 2.3x less time than listing and applying the keys). From block ``start``;
-    returns (status, block to go on from). A block is done whole: room for its 512 voxels in the
-    tick buffer and eight entries in ``changed`` is made sure of first (misses only raise a
-    quarter's count of clamped-free voxels, so each of the eight reaches 64 at most once). The
-    bits of quiet quarters are dropped a word at a time (``QUARTER_KEEP``). The per-voxel update is
-    written out here as in ``apply_voxels_kernel``: numba's call to a shared helper, even
-    inline="always", took 3x the time of the update itself."""
-    miss_lo32 = np.float32(miss_lo)
+    """The misses (``hit`` False) or the hits (True) of blocks given as bit masks (``bkeys``
+    packed block keys, ``masks`` (B, 8) uint64: bit ``off`` of a block's 512, in key order,
+    offsets ascending): what ``apply_voxels_kernel`` does with those voxels listed as keys in
+    that order (phase 1, or phase 0), the same updates in the same order, block by block without
+    listing them (a depth frame's projection: 2.3x less time than listing and applying the keys).
+    From block ``start``; returns (status, block to go on from). A block is done whole: room for
+    its 512 voxels in the tick buffer and eight entries in ``changed`` is made sure of first
+    (misses only raise a quarter's count of clamped-free voxels and hits only lower it, so each
+    of the eight crosses 64 at most once a call). The misses of quiet quarters are dropped a word
+    at a time (``QUARTER_KEEP``). The per-voxel update is written out here as in
+    ``apply_voxels_kernel``: numba's call to a shared helper, even inline="always", took 3x the
+    time of the update itself."""
+    lo = np.float32(hit_lo) if hit else np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
+    lo_max32 = np.float32(lo_max)
     n_tb = tb_meta[0]
     tb_cap = tb_block.shape[0]
     n_ch = ch_meta[0]
@@ -463,16 +465,16 @@ def apply_mask_misses(
         if n_tb + BLOCK_VOXELS > tb_cap or (use_quiet and n_ch + 8 > ch_cap):
             tb_meta[0] = n_tb
             ch_meta[0] = n_ch
-            counters[1] += n_done
+            counters[0 if hit else 1] += n_done
             return STATUS_NEED_TICK_BUFFER if n_tb + BLOCK_VOXELS > tb_cap else STATUS_NEED_CHANGED, t
         bx, by, bz = unpack_block(bkeys[t])
         b = get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz)
         if b < 0:
             tb_meta[0] = n_tb
             ch_meta[0] = n_ch
-            counters[1] += n_done
+            counters[0 if hit else 1] += n_done
             return STATUS_NEED_BLOCKS, t
-        qq = np.int64(qquiet[b]) if use_quiet else np.int64(0)
+        qq = np.int64(qquiet[b]) if use_quiet and not hit else np.int64(0)
         if qq == QUIET_ALL:
             continue
         for wd in range(8):
@@ -491,20 +493,30 @@ def apply_mask_misses(
                     tb_off[n_tb] = off
                     n_tb += 1
                 old = logodds[b, off]
-                v = old + miss_lo32
-                v = lo_min32 if v < lo_min32 else v
+                v = old + lo
+                if hit:
+                    v = lo_max32 if v > lo_max32 else v
+                    hit_mark[b, off] = 1
+                else:
+                    v = lo_min32 if v < lo_min32 else v
                 logodds[b, off] = v
                 stamp[b, off] = frame_id
                 n_done += 1
-                if use_quiet and v == lo_min32 and old != lo_min32:  # (a miss only lowers: the count only rises)
+                if use_quiet and (old == lo_min32) != (v == lo_min32):
                     qi = quarter_of(off)
-                    nfree[b, qi] += 1
-                    if nfree[b, qi] == QUARTER_VOXELS:
-                        changed[n_ch] = b
-                        n_ch += 1
+                    if v == lo_min32:
+                        nfree[b, qi] += 1
+                        if nfree[b, qi] == QUARTER_VOXELS:
+                            changed[n_ch] = b
+                            n_ch += 1
+                    else:
+                        if nfree[b, qi] == QUARTER_VOXELS:
+                            changed[n_ch] = b
+                            n_ch += 1
+                        nfree[b, qi] -= 1
     tb_meta[0] = n_tb
     ch_meta[0] = n_ch
-    counters[1] += n_done
+    counters[0 if hit else 1] += n_done
     return STATUS_DONE, -1
 
 

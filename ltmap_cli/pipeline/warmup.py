@@ -41,7 +41,7 @@ from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import quiet_keys_in_box, with_listed_misses
+from ..core.projective import quiet_keys_in_box, with_listed_voxels
 from ..core.sensors import transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -85,7 +85,7 @@ def warm_maps(cfg: MapConfig) -> None:
     # the tails' misses put in the projection's masks (LayeredMap.depth_voxels): here, not in
     # the projective16 group, the first run's longest (it takes no pixels)
     keys = pack_blocks(np.zeros((1, 3), dtype=np.int64))
-    with_listed_misses(keys, np.zeros((1, 8), dtype=np.uint64), keys.copy(), np.array([0, 0, 0, 7, 7, 7]))
+    with_listed_voxels(keys, np.zeros((1, 8), dtype=np.uint64), keys.copy(), np.array([0, 0, 0, 7, 7, 7]))
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
