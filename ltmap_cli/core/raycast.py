@@ -433,6 +433,26 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
     return True
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _count_free(nfree, b, off, now_free, changed, n_ch):
+    """The voxel at ``off`` of O block b became clamped free (``now_free``) or left it: its
+    quarter's count follows, and the block is appended to ``changed`` when that count reaches
+    or leaves 64. Returns the new length of ``changed``. (Only on such a change, so rare that
+    the call costs nothing; the per-voxel update around it is written out in each kernel.)"""
+    qi = quarter_of(off)
+    if now_free:
+        nfree[b, qi] += 1
+        if nfree[b, qi] == QUARTER_VOXELS:
+            changed[n_ch] = b
+            n_ch += 1
+    else:
+        if nfree[b, qi] == QUARTER_VOXELS:
+            changed[n_ch] = b
+            n_ch += 1
+        nfree[b, qi] -= 1
+    return n_ch
+
+
 @njit(cache=True, nogil=True)
 def apply_mask_updates(
     bkeys, masks, start, hit,
@@ -503,17 +523,7 @@ def apply_mask_updates(
                 stamp[b, off] = frame_id
                 n_done += 1
                 if use_quiet and (old == lo_min32) != (v == lo_min32):
-                    qi = quarter_of(off)
-                    if v == lo_min32:
-                        nfree[b, qi] += 1
-                        if nfree[b, qi] == QUARTER_VOXELS:
-                            changed[n_ch] = b
-                            n_ch += 1
-                    else:
-                        if nfree[b, qi] == QUARTER_VOXELS:
-                            changed[n_ch] = b
-                            n_ch += 1
-                        nfree[b, qi] -= 1
+                    n_ch = _count_free(nfree, b, off, v == lo_min32, changed, n_ch)
     tb_meta[0] = n_tb
     ch_meta[0] = n_ch
     counters[0 if hit else 1] += n_done
@@ -607,17 +617,7 @@ def apply_voxels_kernel(
             stamp[last_b, off] = frame_id
             n_done += 1
             if use_quiet and (old == lo_min32) != (v == lo_min32):
-                qi = quarter_of(off)
-                if v == lo_min32:
-                    nfree[last_b, qi] += 1
-                    if nfree[last_b, qi] == QUARTER_VOXELS:
-                        changed[n_ch] = last_b
-                        n_ch += 1
-                else:
-                    if nfree[last_b, qi] == QUARTER_VOXELS:
-                        changed[n_ch] = last_b
-                        n_ch += 1
-                    nfree[last_b, qi] -= 1
+                n_ch = _count_free(nfree, last_b, off, v == lo_min32, changed, n_ch)
         counters[phase] += n_done
         phase += 1
         start = 0
