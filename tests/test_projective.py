@@ -598,7 +598,7 @@ def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):
     seq = [_wall()] * 6 + [box] * 8 + [_wall()] * 10
     out = {}
     for how in ("masks", "list"):
-        monkeypatch.setattr(layers_mod, "LISTED_MISSES_MAX_BLOCKS", 1 << 18 if how == "masks" else 0)
+        monkeypatch.setattr(layers_mod, "LISTED_VOXELS_MAX_BLOCKS", 1 << 18 if how == "masks" else 0)
         m = _map()
         listed = 0
         for f, depth in enumerate(seq):

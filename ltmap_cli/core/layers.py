@@ -40,7 +40,7 @@ from .grid import (
     voxel_offset,
 )
 from .projective import (
-    LISTED_MISSES_MAX_BLOCKS,
+    LISTED_VOXELS_MAX_BLOCKS,
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
@@ -58,6 +58,7 @@ from .raycast import (
     FV_STATE_SLOTS,
     GROW_DENSE,
     GROW_MISSES,
+    QUIET_ALL,
     SEEN_GROW,
     SEEN_I0,
     SEEN_K0,
@@ -596,10 +597,10 @@ _NO_KEYS = np.empty(0, dtype=np.int64)
 class _QuietBlocks:
     """The record of quiet O blocks and quarters that ``LayeredMap.apply_voxels`` keeps: per O
     block and quarter (4 x 4 x 4, ``core.raycast.quarter_of``) the count of voxels clamped free
-    (``nfree`` (B, 8)), per block its quiet quarters (``qquiet``, a bit each) and the quiet flag
-    (``quiet``: all eight quarters quiet; what the workers' projection skips)."""
+    (``nfree`` (B, 8)) and per block its quiet quarters (``qquiet``, a bit each; the block is
+    quiet, and the workers' projection skips it, when all eight are: ``quiet``)."""
 
-    NFREE, FLAG = np.int32, np.uint8  # the dtypes of ``nfree``, ``qquiet`` and ``quiet`` (the kernels compile for them)
+    NFREE, FLAG = np.int32, np.uint8  # the dtypes of ``nfree`` and ``qquiet`` (the kernels compile for them)
 
     def __init__(self, lmap: LayeredMap, lo_min: float):
         o = lmap.O
@@ -607,7 +608,6 @@ class _QuietBlocks:
         self.tick = lmap.tick_index  # the tick whose ST and LT the flags follow (after_tick)
         self.nfree = np.zeros((o.max_blocks, 8), dtype=self.NFREE)
         self.qquiet = np.zeros(o.max_blocks, dtype=self.FLAG)
-        self.quiet = np.zeros(o.max_blocks, dtype=self.FLAG)
         self.changed = np.empty(1 << 12, dtype=np.int64)
         self.ch_meta = np.zeros(1, dtype=np.int64)
         n = o.n_blocks
@@ -619,13 +619,17 @@ class _QuietBlocks:
             extra = max_blocks - len(self.nfree)
             self.nfree = np.concatenate([self.nfree, np.zeros((extra, 8), dtype=self.nfree.dtype)])
             self.qquiet = np.concatenate([self.qquiet, np.zeros(extra, dtype=self.qquiet.dtype)])
-            self.quiet = np.concatenate([self.quiet, np.zeros(extra, dtype=self.quiet.dtype)])
+
+    @property
+    def quiet(self) -> np.ndarray:
+        """Per O block: quiet (all eight quarters), as bools."""
+        return self.qquiet == QUIET_ALL
 
     def update(self, lmap: LayeredMap, n: int, blocks: np.ndarray | None = None) -> None:
         """Quiet flags of ``blocks[:n]`` (default: those with a quarter whose count the last frame
         moved to or from 64)."""
         d, o = lmap.D, lmap.O
-        quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.qquiet, self.quiet, o.block_coords,
+        quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.qquiet, o.block_coords,
                      d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
         self.d, self.d_blocks = d, d.n_blocks
         self.version = next(_QUIET_VERSIONS)  # (the flags may have changed: publish them again)
@@ -641,8 +645,8 @@ class _QuietBlocks:
         quiet (the D block of something seen once stays: the office bench scene's person left 40
         such blocks in each frame's frustum, 22 % of the masks' miss bits, never quiet)."""
         d = lmap.D
-        if quiet_after_tick(lmap.O.n_blocks, self.nfree, self.qquiet, self.quiet, lmap.O.block_coords, d.table_keys,
-                            d.table_vals, d.data["st"], d.data["lt"]):  # fmt: skip
+        if quiet_after_tick(lmap.O.n_blocks, self.nfree, self.qquiet, lmap.O.block_coords, d.table_keys, d.table_vals,
+                            d.data["st"], d.data["lt"]):  # fmt: skip
             self.version = next(_QUIET_VERSIONS)
         self.tick = lmap.tick_index
 
@@ -892,13 +896,13 @@ class LayeredMap:
         whole rays, no projection; projective: the rays' tails and ``depth_projection``, the
         tails' misses put in the projection's block masks and the hits in masks of their own
         (``with_listed_voxels``; kept as lists only in a box of more than
-        ``LISTED_MISSES_MAX_BLOCKS`` blocks). Reads no map state (a worker thread's part)."""
+        ``LISTED_VOXELS_MAX_BLOCKS`` blocks). Reads no map state (a worker thread's part)."""
         if self.cfg.sensor.depth_integration != "projective":
             return (*self.frame_voxels(T[:3, 3], ends, kind), None)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
         hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
         box = projection.box
-        if len(misses) and int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_MISSES_MAX_BLOCKS:
+        if len(misses) and int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_VOXELS_MAX_BLOCKS:
             keys, masks, ok = with_listed_voxels(projection.keys, projection.masks, misses, box)
             if ok:
                 hk, hm, ok = with_listed_voxels(projection.keys[:0], projection.masks[:0], hits, box)
@@ -997,7 +1001,7 @@ class LayeredMap:
         more (the worker saw an older list; ``_publish_quiet``), in key order: what it would have
         been with the map as the frame begins."""
         o = self.O
-        stale = stale_skips(projection.skipped, projection.box, o.table_keys, o.table_vals, q.quiet)
+        stale = stale_skips(projection.skipped, projection.box, o.table_keys, o.table_vals, q.qquiet)
         if not len(stale):
             return projection
         keys = np.empty(len(stale), dtype=np.int64)
@@ -1033,10 +1037,10 @@ class LayeredMap:
         if q.version == self._quiet_keys_version and (listed is None or (not whole and np.array_equal(box, listed))):
             return
         if whole:
-            idx = np.nonzero(q.quiet[: o.n_blocks])[0]
+            idx = np.nonzero(q.qquiet[: o.n_blocks] == QUIET_ALL)[0]
             self._quiet_keys = np.sort(pack_blocks(o.block_coords[idx]))
         else:
-            self._quiet_keys = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.quiet)
+            self._quiet_keys = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.qquiet)
         self._quiet_keys_version, self._quiet_keys_box = q.version, None if whole else box
 
     def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:

@@ -26,7 +26,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block
+from .grid import _PACK_BITS, BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
+from .raycast import QUIET_ALL
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -517,17 +518,16 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
 
 
-# a frame box of more blocks keeps its tails' misses as a list (with_listed_voxels' table of the
-# box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
-LISTED_MISSES_MAX_BLOCKS = 1 << 18
+# a frame box of more blocks keeps its hits and tail misses as lists (with_listed_voxels' table
+# of the box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
+LISTED_VOXELS_MAX_BLOCKS = 1 << 18
 
 
 @njit(cache=True, nogil=True)
-def with_listed_voxels(pkeys, pmasks, misses, box):
-    """The projection's blocks (``pkeys`` ascending, ``pmasks``) with the voxels ``misses``
+def with_listed_voxels(pkeys, pmasks, voxels, box):
+    """The projection's blocks (``pkeys`` ascending, ``pmasks``) with the voxels ``voxels``
     (packed voxel keys: the rays' tails' misses, ``core.raycast.frame_voxels``; or, with no
-    blocks given, the frame's hits) set in their blocks'
-    masks: (keys ascending, masks, True); (empty, empty, False) when a block lies outside the
+    blocks given, the frame's hits) set in their blocks' masks: (keys ascending, masks, True); (empty, empty, False) when a block lies outside the
     frame's voxel box ``box``. The map thread then applies a frame's misses block by block
     (``apply_mask_updates``: no hash lookup per voxel, quiet quarters dropped a word at a time),
     not the tails' misses one key at a time (the room bench log: 37 k tail misses a frame,
@@ -542,7 +542,7 @@ def with_listed_voxels(pkeys, pmasks, misses, box):
     for t in range(nb):
         slot[t] = -1
     n = pkeys.shape[0]
-    cap = n + min(misses.shape[0], nb)
+    cap = n + min(voxels.shape[0], nb)
     keys = np.empty(cap, dtype=np.int64)
     masks = np.empty((cap, 8), dtype=np.uint64)
     for t in range(n):
@@ -557,10 +557,11 @@ def with_listed_voxels(pkeys, pmasks, misses, box):
     # a packed voxel key without its 3 low bits per axis names its block (the offset 2^20 is a
     # multiple of 8): the key's block is worked out again only where it changes (a tail's misses
     # run through a few blocks), and a voxel's offset and bit come from the key's bits
-    same_block = ~np.int64(BLOCK - 1 | (BLOCK - 1) << 21 | (BLOCK - 1) << 42)
+    P = _PACK_BITS
+    same_block = ~np.int64(BLOCK - 1 | (BLOCK - 1) << P | (BLOCK - 1) << (2 * P))
     last, s = np.int64(-1), np.int64(-1)
-    for r in range(misses.shape[0]):
-        key = misses[r]
+    for r in range(voxels.shape[0]):
+        key = voxels[r]
         kb = key & same_block
         if kb != last:
             i, j, k = unpack_block(key)
@@ -577,8 +578,8 @@ def with_listed_voxels(pkeys, pmasks, misses, box):
                     masks[m, w] = 0
                 m += 1
             last = kb
-        # voxel_offset from the key: x's 3 low bits (bits 42-44) are the mask's word, y's and z's its bit
-        masks[s, (key >> 42) & 7] |= np.uint64(1) << np.uint64(((key >> 18) & 56) | (key & 7))
+        off = voxel_offset(key >> (2 * P), key >> P, key)  # (it takes each field's 3 low bits)
+        masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
     if m == n:
         return keys[:m], masks[:m], True
     # in key order: the box's blocks in x, y, z order are (``pack_block``'s order; no sort: numba's
@@ -598,8 +599,8 @@ def with_listed_voxels(pkeys, pmasks, misses, box):
 
 
 @njit(cache=True, nogil=True)
-def quiet_keys_in_box(box, table_keys, table_vals, quiet):
-    """The packed keys of the quiet O blocks (``quiet`` by O block) among the blocks of the voxel
+def quiet_keys_in_box(box, table_keys, table_vals, qquiet):
+    """The packed keys of the quiet O blocks (``qquiet`` by O block: all quarters quiet) among the blocks of the voxel
     box ``box``, ascending (walked in x, y, z order: ``pack_block``'s order). Reads the map: the
     thread that owns it; costs a lookup per block of the box, whatever the map's size."""
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
@@ -610,14 +611,14 @@ def quiet_keys_in_box(box, table_keys, table_vals, quiet):
         for bj in range(bj0, bj1 + 1):
             for bk in range(bk0, bk1 + 1):
                 ob = find_block(table_keys, table_vals, bi, bj, bk)
-                if ob >= 0 and quiet[ob] != 0:
+                if ob >= 0 and qquiet[ob] == QUIET_ALL:
                     out[n] = pack_block(bi, bj, bk)
                     n += 1
     return out[:n]
 
 
 @njit(cache=True, nogil=True)
-def stale_skips(skipped, box, table_keys, table_vals, quiet):
+def stale_skips(skipped, box, table_keys, table_vals, qquiet):
     """Of the box's blocks ``skipped`` as quiet by a worker, those that are not quiet now (or not
     in O: a map loaded since), in order, as a new array. Reads the map: the thread that owns it."""
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
@@ -627,7 +628,7 @@ def stale_skips(skipped, box, table_keys, table_vals, quiet):
     for t in range(skipped.shape[0]):
         b = skipped[t]
         ob = find_block(table_keys, table_vals, bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk)
-        if ob < 0 or quiet[ob] == 0:
+        if ob < 0 or qquiet[ob] != QUIET_ALL:
             out[n] = b
             n += 1
     return out[:n]

@@ -658,19 +658,17 @@ def _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt):
 
 
 @njit(cache=True, nogil=True)
-def quiet_update(blocks, n, nfree, qquiet, quiet, block_coords, d_keys, d_vals, st, lt):
-    """Set the quiet quarters ``qquiet[b]`` (``_quiet_quarters``) and the quiet flag ``quiet[b]``
-    (all eight quarters quiet) of the O blocks ``blocks[:n]``."""
+def quiet_update(blocks, n, nfree, qquiet, block_coords, d_keys, d_vals, st, lt):
+    """Set the quiet quarters ``qquiet[b]`` (``_quiet_quarters``; the block is quiet when all
+    eight are: ``QUIET_ALL``) of the O blocks ``blocks[:n]``."""
     every = np.int64(QUIET_ALL)  # (not the literal: numba would compile _quiet_quarters once more for it)
     for t in range(n):
         b = blocks[t]
-        qq = _quiet_quarters(b, every, nfree, block_coords, d_keys, d_vals, st, lt)
-        qquiet[b] = qq
-        quiet[b] = 1 if qq == QUIET_ALL else 0
+        qquiet[b] = _quiet_quarters(b, every, nfree, block_coords, d_keys, d_vals, st, lt)
 
 
 @njit(cache=True, nogil=True)
-def quiet_after_tick(n_blocks, nfree, qquiet, quiet, block_coords, d_keys, d_vals, st, lt):
+def quiet_after_tick(n_blocks, nfree, qquiet, block_coords, d_keys, d_vals, st, lt):
     """After a tick: the quarters all clamped free that were not quiet for their ST or LT and
     have none left (the tick rules lowered them to 0) are quiet (a quiet quarter stays so: the
     tick rules do nothing there). Returns how many blocks gained quiet quarters."""
@@ -687,9 +685,7 @@ def quiet_after_tick(n_blocks, nfree, qquiet, quiet, block_coords, d_keys, d_val
             continue
         got = _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt)
         if got != 0:
-            qq |= got
-            qquiet[b] = qq
-            quiet[b] = 1 if qq == QUIET_ALL else 0
+            qquiet[b] = qq | got
             n += 1
     return n
 

@@ -79,9 +79,8 @@ def warm_maps(cfg: MapConfig) -> None:
     m.end_tick()
     # the quiet blocks' check after a tick (the rays group's apply_voxels makes their record)
     o, d, q = m.O, m.D, _QuietBlocks
-    flags = np.zeros(o.max_blocks, dtype=q.FLAG)
-    raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), flags, flags, o.block_coords,
-                             d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
+    raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), np.zeros(o.max_blocks, dtype=q.FLAG),
+                             o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
     # the tails' misses put in the projection's masks (LayeredMap.depth_voxels): here, not in
     # the projective16 group, the first run's longest (it takes no pixels)
     keys = pack_blocks(np.zeros((1, 3), dtype=np.int64))
@@ -132,7 +131,7 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "p
     m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
     m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
     # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
-    quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().quiet)
+    quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().qquiet)
 
 
 GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
