@@ -563,27 +563,83 @@ def _mask_voxels(keys, masks) -> set:
     return out
 
 
-def test_tail_misses_join_the_projection_masks_by_hand():
-    """``with_listed_voxels``: the voxels of a list set in their blocks' masks, new blocks added in
-    key order, blocks of both the union; a voxel outside the frame's box refuses (the caller
-    keeps the list)."""
+def _unpack_voxels(keys) -> list:
+    """Packed voxel keys (``grid.pack_block``'s packing) as (i, j, k) tuples."""
+    from ltmap_cli.core.grid import unpack_block
+
+    return [tuple(int(c) for c in unpack_block(int(key))) for key in keys]
+
+
+def test_tail_masks_by_hand():
+    """``tail_masks`` at 1 m voxels: each ray's last ``tail`` metres walked into the
+    projection's masks (the end voxel not walked; a ray shorter than the tail walked from the
+    origin's voxel; a dropped ray nothing), the hit rays' end voxels into masks of their own,
+    keys ascending, new blocks added in key order; a voxel outside the frame's box refuses (the
+    caller lists the frame's voxels instead)."""
     from ltmap_cli.core.grid import pack_blocks
-    from ltmap_cli.core.projective import with_listed_voxels
+    from ltmap_cli.core.projective import tail_masks
+    from ltmap_cli.core.raycast import RAY_CLEAR, RAY_HIT, RAY_SKIP
 
     box = np.array([-16, 0, 0, 23, 15, 7], dtype=np.int64)  # blocks x -2..2, y 0..1, z 0
-    pkeys = pack_blocks(np.array([[-1, 0, 0], [1, 1, 0]], dtype=np.int64))
-    order = np.argsort(pkeys)
-    pkeys = pkeys[order]
+    pkeys = np.sort(pack_blocks(np.array([[-1, 0, 0], [1, 1, 0]], dtype=np.int64)))
     pmasks = np.zeros((2, 8), dtype=np.uint64)
     pmasks[0, 0], pmasks[1, 7] = 1, 1 << 63
-    before = _mask_voxels(pkeys, pmasks)
-    listed = [(-8, 0, 0), (-8, 0, 1), (20, 3, 7), (9, 15, 7), (-16, 9, 2), (20, 3, 7)]
-    keys, masks, ok = with_listed_voxels(pkeys, pmasks, pack_blocks(np.array(listed, dtype=np.int64)), box)
+    before = _mask_voxels(pkeys, pmasks)  # (-8, 0, 0) and (15, 15, 7)
+    origin = np.array([0.5, 0.5, 0.5])
+    ends = np.array([
+        [10.5, 0.5, 0.5],  # a hit 10 m along x: tail from x = 7.5
+        [0.5, 12.5, 0.5],  # a clear ray along y: its tail from y = 9.5, no hit
+        [-13.5, 0.5, 0.5],  # dropped
+        [0.5, 0.5, 2.5],  # a hit 2 m away, shorter than the tail: from the origin's voxel
+        [0.9, 0.1, 0.5],  # a hit in the origin's voxel: nothing walked
+    ])  # fmt: skip
+    kind = np.array([RAY_HIT, RAY_CLEAR, RAY_SKIP, RAY_HIT, RAY_HIT], dtype=np.int8)
+    keys, masks, hkeys, hmasks, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 3.0, pkeys, pmasks, box)
     assert ok
-    assert np.all(np.diff(keys) > 0) and len(keys) == 4  # (-1,0,0) and (1,1,0), and new: (2,0,0), (-2,1,0)
-    assert _mask_voxels(keys, masks) == before | set(listed)
-    _, _, ok = with_listed_voxels(pkeys, pmasks, pack_blocks(np.array([[24, 0, 0]], dtype=np.int64)), box)
-    assert not ok
+    # blocks (-1,0,0) and (1,1,0), and new: (0,0,0), (1,0,0) (x 8, 9) and (0,1,0) (y 9 to 11)
+    assert np.all(np.diff(keys) > 0) and len(keys) == 5
+    assert _mask_voxels(keys, masks) == before | {(7, 0, 0), (8, 0, 0), (9, 0, 0), (0, 9, 0), (0, 10, 0), (0, 11, 0),
+                                                  (0, 0, 0), (0, 0, 1)}  # fmt: skip
+    assert np.all(np.diff(hkeys) > 0) and len(hkeys) == 2  # blocks (0,0,0) and (1,0,0) only
+    assert _mask_voxels(hkeys, hmasks) == {(10, 0, 0), (0, 0, 2), (0, 0, 0)}
+    # a tail of 1.5 m: from x = 9, y = 11, z = 1
+    keys, masks, _, _, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 1.5, pkeys[:0], pmasks[:0], box)
+    assert ok and _mask_voxels(keys, masks) == {(9, 0, 0), (0, 11, 0), (0, 0, 1)}
+    small = np.array([-16, 0, 0, 7, 15, 7], dtype=np.int64)  # the first ray's tail and hit are beyond it
+    assert not tail_masks(origin, ends, kind, 1.0, 1.0, 3.0, pkeys, pmasks, small)[4]
+    narrow = np.array([-16, 0, 0, 23, 7, 7], dtype=np.int64)  # the clear ray's tail (y 10, 11) is beyond it
+    assert not tail_masks(origin, ends[1:2], kind[1:2], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow)[4]
+    assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow)[4]
+
+
+def test_tail_masks_are_the_listed_tails():
+    """On frames of a tilted camera over a wall, a box and a floor, from several poses: the
+    misses ``tail_masks`` sets beside the projection's are the tails' misses ``frame_voxels``
+    lists, bar the voxels the frame hits (left to the map thread: a voxel updated once a
+    frame, hits first), and its hits are ``frame_voxels``' hits."""
+    from ltmap_cli.core.projective import ends_box, tail_masks
+
+    m = _map()
+    scene = _wall(4200)
+    scene[30:90, 40:100] = 1700  # a box in front of the wall
+    scene[100:, :] = 0  # no return: the rows below
+    scene[5:9, 150:] = 9000  # beyond max_range: cut there, no hit
+    tail = m.projective_tail()
+    for yaw in (0.0, 0.3, -0.7, 1.1):
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        T = np.array([[c, -s_, 0, 0.13], [s_, c, 0, -0.21], [0, 0, 1, 0.0], [0, 0, 0, 1.0]]) @ POSE
+        T[:3, :3] = T[:3, :3] @ np.array([[1, 0, 0], [0, np.cos(0.2), -np.sin(0.2)], [0, np.sin(0.2), np.cos(0.2)]])
+        T = np.ascontiguousarray(T)
+        ends, kind = m.depth_rays(scene, F, F, CX, CY, T, 8.0)
+        hits, misses = m.frame_voxels(T[:3, 3], ends, kind, tail)
+        empty_keys, empty_masks = np.empty(0, dtype=np.int64), np.empty((0, 8), dtype=np.uint64)
+        box = ends_box(np.ascontiguousarray(T[:3, 3]), ends, 1.0 / m.resolution)
+        keys, masks, hkeys, hmasks, ok = tail_masks(np.ascontiguousarray(T[:3, 3]), ends, kind, 1.0 / m.resolution,
+                                                    m.resolution, tail, empty_keys, empty_masks, box)  # fmt: skip
+        assert ok and len(misses) > 500 and len(hits) > 100
+        hit_set = set(_unpack_voxels(hits))
+        assert _mask_voxels(hkeys, hmasks) == hit_set
+        assert _mask_voxels(keys, masks) - hit_set == set(_unpack_voxels(misses))
 
 
 def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):

@@ -48,7 +48,7 @@ from .projective import (
     projective_fill,
     quiet_keys_in_box,
     stale_skips,
-    with_listed_voxels,
+    tail_masks,
 )
 from .raycast import (
     DEPTH_CAP_MIN,
@@ -893,22 +893,22 @@ class LayeredMap:
                      max_range: float, ends: np.ndarray, kind: np.ndarray):
         """The cast half of a depth image whose rays are (``ends``, ``kind``), by
         ``map.sensor.depth_integration``: (hits, misses, projection) for ``apply_voxels``; exact:
-        whole rays, no projection; projective: the rays' tails and ``depth_projection``, the
-        tails' misses put in the projection's block masks and the hits in masks of their own
-        (``with_listed_voxels``; kept as lists only in a box of more than
-        ``LISTED_VOXELS_MAX_BLOCKS`` blocks). Reads no map state (a worker thread's part)."""
+        whole rays, no projection; projective: ``depth_projection`` and the rays' tails, the
+        tails' misses set in the projection's block masks and the hits in masks of their own
+        (``tail_masks``; listed by ``frame_voxels`` only in a box of more than
+        ``LISTED_VOXELS_MAX_BLOCKS`` blocks, or when a step leaves the box). Reads no map state
+        (a worker thread's part)."""
         if self.cfg.sensor.depth_integration != "projective":
             return (*self.frame_voxels(T[:3, 3], ends, kind), None)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
-        hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
         box = projection.box
-        if len(misses) and int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_VOXELS_MAX_BLOCKS:
-            keys, masks, ok = with_listed_voxels(projection.keys, projection.masks, misses, box)
+        if int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_VOXELS_MAX_BLOCKS:
+            origin = np.ascontiguousarray(T[:3, 3], dtype=np.float64)
+            keys, masks, hk, hm, ok = tail_masks(origin, ends, kind, 1.0 / self.resolution, self.resolution,
+                                                 self.projective_tail(), projection.keys, projection.masks, box)  # fmt: skip
             if ok:
-                hk, hm, ok = with_listed_voxels(projection.keys[:0], projection.masks[:0], hits, box)
-                if ok:
-                    return hits[:0], misses[:0], projection._replace(keys=keys, masks=masks, hits=(hk, hm))
-                return hits, misses[:0], projection._replace(keys=keys, masks=masks)
+                return _NO_KEYS, _NO_KEYS, projection._replace(keys=keys, masks=masks, hits=(hk, hm))
+        hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
         return hits, misses, projection
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:

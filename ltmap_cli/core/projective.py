@@ -5,7 +5,7 @@ times (a 640x480 frame of a room seen along its length: 3.5 M steps for 250 k di
 With ``map.sensor.depth_integration: projective`` a depth frame is integrated in two parts:
 
 - near its returns, exactly as before: every ray (one per end voxel) is walked by the DDA over
-  its last ``band`` + ``TAIL_OVERLAP_VOXELS`` only (``core.raycast.frame_voxels`` with ``tail``),
+  its last ``band`` + ``TAIL_OVERLAP_VOXELS`` only (``tail_masks``, with ``core.raycast``'s DDA),
   so the hits, and the misses of the voxels next to surfaces, are those of the exact traversal;
 - farther in front of the returns, by projection: a voxel of the frustum whose centre projects
   onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the camera than
@@ -13,7 +13,7 @@ With ``map.sensor.depth_integration: projective`` a depth frame is integrated in
   miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). It reads no map
   state, so the worker threads run it; the thread that owns the map applies the blocks' masks
   in frame order (``core.raycast.apply_mask_updates``), the tails' misses set in them too
-  (``with_listed_voxels``), skipping quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
+  (``tail_masks``), skipping quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
   free, no ST or LT: a miss there changes nothing).
 
 It differs from the exact traversal only in free space farther than ``band`` from a return
@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from .grid import _PACK_BITS, BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
-from .raycast import QUIET_ALL
+from .raycast import QUIET_ALL, RAY_HIT, RAY_SKIP, ray_start, ray_step
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -518,84 +518,131 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
 
 
-# a frame box of more blocks keeps its hits and tail misses as lists (with_listed_voxels' table
-# of the box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
+# a frame box of more blocks keeps its hits and tail misses as lists (tail_masks' tables of the
+# box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
+LISTED_VOXELS_MAX_BLOCKS = 1 << 18
+
+
+# a frame box of more blocks keeps its hits and tail misses as lists (tail_masks' table of the
+# box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
 LISTED_VOXELS_MAX_BLOCKS = 1 << 18
 
 
 @njit(cache=True, nogil=True)
-def with_listed_voxels(pkeys, pmasks, voxels, box):
-    """The projection's blocks (``pkeys`` ascending, ``pmasks``) with the voxels ``voxels``
-    (packed voxel keys: the rays' tails' misses, ``core.raycast.frame_voxels``; or, with no
-    blocks given, the frame's hits) set in their blocks' masks: (keys ascending, masks, True); (empty, empty, False) when a block lies outside the
-    frame's voxel box ``box``. The map thread then applies a frame's misses block by block
-    (``apply_mask_updates``: no hash lookup per voxel, quiet quarters dropped a word at a time),
-    not the tails' misses one key at a time (the room bench log: 37 k tail misses a frame,
-    two thirds of the map thread's list). A block's voxels are updated in offset order instead
-    of the rays' order: each voxel still once a frame, after the frame's hits, with the same
-    values; only the order they enter the tick buffer in differs."""
+def _rows_in_key_order(slot, keys, masks, m, w0):
+    """The rows of ``keys[:m]`` with any bit in words ``w0`` to ``w0`` + 7 of ``masks``, in key
+    order (the box's blocks walked in x, y, z order, ``pack_block``'s order; no sort: numba's
+    argsort took 2 s of a first run's compiling): (keys, masks (n, 8))."""
+    out_keys = np.empty(m, dtype=np.int64)
+    out_masks = np.empty((m, 8), dtype=np.uint64)
+    t = 0
+    for idx in range(slot.shape[0]):
+        o = slot[idx]
+        if o < 0:
+            continue
+        any_bit = np.uint64(0)
+        for w in range(8):
+            out_masks[t, w] = masks[o, w0 + w]
+            any_bit |= masks[o, w0 + w]
+        if any_bit != 0:
+            out_keys[t] = keys[o]
+            t += 1
+    return out_keys[:t], out_masks[:t]
+
+
+@njit(cache=True, nogil=True)
+def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box):
+    """The rays' tails and hits of a depth frame straight into block masks, with the
+    projection's: (keys, masks, hit keys, hit masks, True), keys ascending; the masks hold the
+    projection's blocks (``pkeys`` ascending, ``pmasks``) with the misses of every ray's last
+    ``tail`` metres (``core.raycast``'s DDA: ``ray_start``, ``ray_step``) set in them, the hit
+    masks the end voxels of the hit rays. (empty, empty, empty, empty, False) when a voxel lies
+    outside the frame's voxel box ``box`` (a step past a ray's end: the caller lists the frame's
+    voxels instead, ``frame_voxels``).
+
+    One table row per block of the box that has any: words 0 to 7 its misses, 8 to 15 its hits.
+    A voxel set twice is set once, so no "listed already" bitmap is kept and nothing is listed;
+    a tail's miss on a voxel this frame hits is left to the map thread, which updates a voxel at
+    most once a frame, hits first (``apply_mask_updates``). The map thread then applies the
+    misses block by block (no hash lookup per voxel, quiet quarters dropped a word at a time):
+    each voxel once a frame, after the frame's hits, with the values of the rays' order; only
+    the order voxels enter the tick buffer in differs. Reads no map state (a worker's part)."""
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
-    bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
-    nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
-    nb = (bi1 - bi0 + 1) * nbj * nbk
+    nbi = (box[3] >> BLOCK_BITS) - bi0 + 1
+    nbj = (box[4] >> BLOCK_BITS) - bj0 + 1
+    nbk = (box[5] >> BLOCK_BITS) - bk0 + 1
+    ubi, ubj, ubk = np.uint64(nbi), np.uint64(nbj), np.uint64(nbk)
+    nb = nbi * nbj * nbk
+    rays = 0
+    for r in range(kind.shape[0]):
+        rays += kind[r] != RAY_SKIP
+    # rows: at most one per block of the box, and a ray sets its hit and at most max_steps + 1
+    # voxels of its tail (ray_start: its voxel span + 3, + 1), so no growth in the loop
+    span = np.int64(np.ceil(tail * inv_res)) + 1
+    per_ray = 3 * span + 5 if tail > 0.0 else nb
+    n = pkeys.shape[0]
+    cap = min(nb, n + rays * per_ray)
     slot = np.empty(nb, dtype=np.int32)
     for t in range(nb):
         slot[t] = -1
-    n = pkeys.shape[0]
-    cap = n + min(voxels.shape[0], nb)
     keys = np.empty(cap, dtype=np.int64)
-    masks = np.empty((cap, 8), dtype=np.uint64)
+    masks = np.empty((cap, 16), dtype=np.uint64)
+    no_masks = np.empty((0, 8), dtype=np.uint64)
+    refused = (keys[:0], no_masks, keys[:0], no_masks, False)
     for t in range(n):
         bi, bj, bk = unpack_block(pkeys[t])
-        if not (bi0 <= bi <= bi1 and bj0 <= bj <= bj1 and bk0 <= bk <= bk1):
-            return keys[:0], masks[:0], False
+        if not (bi0 <= bi < bi0 + nbi and bj0 <= bj < bj0 + nbj and bk0 <= bk < bk0 + nbk):
+            return refused
         slot[((bi - bi0) * nbj + (bj - bj0)) * nbk + (bk - bk0)] = t
         keys[t] = pkeys[t]
         for w in range(8):
             masks[t, w] = pmasks[t, w]
+            masks[t, 8 + w] = 0
     m = n
-    # a packed voxel key without its 3 low bits per axis names its block (the offset 2^20 is a
-    # multiple of 8): the key's block is worked out again only where it changes (a tail's misses
-    # run through a few blocks), and a voxel's offset and bit come from the key's bits
-    P = _PACK_BITS
-    same_block = ~np.int64(BLOCK - 1 | (BLOCK - 1) << P | (BLOCK - 1) << (2 * P))
-    last, s = np.int64(-1), np.int64(-1)
-    for r in range(voxels.shape[0]):
-        key = voxels[r]
-        kb = key & same_block
-        if kb != last:
-            i, j, k = unpack_block(key)
-            bi, bj, bk = i >> BLOCK_BITS, j >> BLOCK_BITS, k >> BLOCK_BITS
-            if not (bi0 <= bi <= bi1 and bj0 <= bj <= bj1 and bk0 <= bk <= bk1):
-                return keys[:0], masks[:0], False
-            idx = ((bi - bi0) * nbj + (bj - bj0)) * nbk + (bk - bk0)
+    ox, oy, oz = origin[0], origin[1], origin[2]
+    ki0 = np.int64(np.floor(ox * inv_res))
+    kj0 = np.int64(np.floor(oy * inv_res))
+    kk0 = np.int64(np.floor(oz * inv_res))
+    for r in range(ends.shape[0]):
+        kd = kind[r]
+        if kd == RAY_SKIP:
+            continue
+        ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
+        ei = np.int64(np.floor(ex * inv_res))
+        ej = np.int64(np.floor(ey * inv_res))
+        ek = np.int64(np.floor(ez * inv_res))
+        walk, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
+            ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, tail)  # fmt: skip
+        # the ray's voxels: its end voxel first when a hit (words 8 to 15), then each voxel its
+        # walk passes up to the end voxel (not walked): a miss
+        hit = kd == RAY_HIT
+        vi, vj, vk = (ei, ej, ek) if hit else (ci, cj, ck)
+        steps = 0
+        while hit or walk:
+            bi, bj, bk = (vi >> BLOCK_BITS) - bi0, (vj >> BLOCK_BITS) - bj0, (vk >> BLOCK_BITS) - bk0
+            if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
+                return refused
+            idx = (bi * nbj + bj) * nbk + bk
             s = np.int64(slot[idx])
             if s < 0:
                 s = m
                 slot[idx] = m
-                keys[m] = pack_block(bi, bj, bk)
-                for w in range(8):
+                keys[m] = pack_block(vi >> BLOCK_BITS, vj >> BLOCK_BITS, vk >> BLOCK_BITS)
+                for w in range(16):
                     masks[m, w] = 0
                 m += 1
-            last = kb
-        off = voxel_offset(key >> (2 * P), key >> P, key)  # (it takes each field's 3 low bits)
-        masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
-    if m == n:
-        return keys[:m], masks[:m], True
-    # in key order: the box's blocks in x, y, z order are (``pack_block``'s order; no sort: numba's
-    # argsort took 2 s of a first run's compiling)
-    out_keys = np.empty(m, dtype=np.int64)
-    out_masks = np.empty((m, 8), dtype=np.uint64)
-    t = 0
-    for idx in range(nb):
-        o = slot[idx]
-        if o < 0:
-            continue
-        out_keys[t] = keys[o]
-        for w in range(8):
-            out_masks[t, w] = masks[o, w]
-        t += 1
-    return out_keys, out_masks, True
+            off = voxel_offset(vi, vj, vk)
+            masks[s, (off >> 6) + (8 if hit else 0)] |= np.uint64(1) << np.uint64(off & 63)
+            if hit:  # the hit set: now the walk, from its first voxel
+                hit = False
+                vi, vj, vk = ci, cj, ck
+                continue
+            _, ci, cj, ck, tmx, tmy, tmz, steps, walk = ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz,
+                                                                 ei, ej, ek, length, steps, max_steps)  # fmt: skip
+            vi, vj, vk = ci, cj, ck
+    okeys, omasks = _rows_in_key_order(slot, keys, masks, m, np.int64(0))
+    hkeys, hmasks = _rows_in_key_order(slot, keys, masks, m, np.int64(8))
+    return okeys, omasks, hkeys, hmasks, True
 
 
 @njit(cache=True, nogil=True)

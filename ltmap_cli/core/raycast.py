@@ -252,6 +252,87 @@ def _seen_bit(seen, bit):
     return (seen[bit >> 6] >> np.uint64(bit & 63)) & np.uint64(1)
 
 
+
+RAY_FAR = 1e300  # a DDA's next crossing along an axis the ray does not move along: never
+
+
+@njit(cache=True, nogil=True, inline="always")
+def ray_start(ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, tail):
+    """The Amanatides & Woo DDA's start for the ray from (ox, oy, oz) (voxel (ki0, kj0, kk0)) to
+    (ex, ey, ez) (voxel (ei, ej, ek)), OctoMap's ``computeRayKeys`` arithmetic: (walk, ci, cj, ck,
+    si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps). walk is False when no voxel is
+    walked (the end in the origin's voxel, or a tail that starts in the end voxel). ``tail`` > 0:
+    the walk starts ``tail`` metres before the end (the rays' tails of projective depth
+    integration), and length is tail. ``ray_step`` takes the walk on from (ci, cj, ck)."""
+    if ei == ki0 and ej == kj0 and ek == kk0:
+        return False, ki0, kj0, kk0, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    dx, dy, dz = ex - ox, ey - oy, ez - oz
+    length = np.sqrt(dx * dx + dy * dy + dz * dz)
+    dx /= length
+    dy /= length
+    dz /= length
+    ci, cj, ck = ki0, kj0, kk0
+    rx, ry, rz = ox, oy, oz  # where this ray's walk starts
+    if tail > 0.0 and length > tail:
+        rx, ry, rz = ex - dx * tail, ey - dy * tail, ez - dz * tail
+        ci = np.int64(np.floor(rx * inv_res))
+        cj = np.int64(np.floor(ry * inv_res))
+        ck = np.int64(np.floor(rz * inv_res))
+        length = tail
+        if ci == ei and cj == ej and ck == ek:
+            return False, ci, cj, ck, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+    si = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
+    sj = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
+    sk = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
+    if si != 0:
+        tmx = ((ci + 0.5) * res + si * res * 0.5 - rx) / dx
+        tdx = res / abs(dx)
+    else:
+        tmx = RAY_FAR
+        tdx = RAY_FAR
+    if sj != 0:
+        tmy = ((cj + 0.5) * res + sj * res * 0.5 - ry) / dy
+        tdy = res / abs(dy)
+    else:
+        tmy = RAY_FAR
+        tdy = RAY_FAR
+    if sk != 0:
+        tmz = ((ck + 0.5) * res + sk * res * 0.5 - rz) / dz
+        tdz = res / abs(dz)
+    else:
+        tmz = RAY_FAR
+        tdz = RAY_FAR
+    max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
+    return True, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps
+
+
+@njit(cache=True, nogil=True, inline="always")
+def ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz, ei, ej, ek, length, steps, max_steps):
+    """One DDA step from voxel (ci, cj, ck), OctoMap's tie breaking (strict < picks the lower
+    axis only when smaller) and stop rule: (the axis stepped along, ci, cj, ck, tmx, tmy, tmz,
+    steps, more). more is False when the walk ends (the end voxel reached, which is not walked,
+    past ``length``, or more than ``max_steps`` steps)."""
+    if tmx < tmy:
+        dim = 0 if tmx < tmz else 2
+    else:
+        dim = 1 if tmy < tmz else 2
+    if dim == 0:
+        ci += si
+        tmx += tdx
+    elif dim == 1:
+        cj += sj
+        tmy += tdy
+    else:
+        ck += sk
+        tmz += tdz
+    if ci == ei and cj == ej and ck == ek:
+        return dim, ci, cj, ck, tmx, tmy, tmz, steps, False
+    if min(tmx, min(tmy, tmz)) > length:
+        return dim, ci, cj, ck, tmx, tmy, tmz, steps, False
+    steps += 1
+    return dim, ci, cj, ck, tmx, tmy, tmz, steps, steps <= max_steps
+
+
 @njit(cache=True, nogil=True)
 def frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misses, sp_keys, sp_gen, sp_vals, sp_words,
                  state, tail):  # fmt: skip
@@ -330,7 +411,6 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
     ki0 = np.int64(np.floor(ox * inv_res))
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
-    big = 1e300
     for r in range(state[FV_RAY], n):
         if kind[r] == RAY_SKIP:
             continue
@@ -338,45 +418,10 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
         ei = np.int64(np.floor(ex * inv_res))
         ej = np.int64(np.floor(ey * inv_res))
         ek = np.int64(np.floor(ez * inv_res))
-        if ei == ki0 and ej == kj0 and ek == kk0:
+        walk, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
+            ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, tail)  # fmt: skip
+        if not walk:
             continue
-        dx, dy, dz = ex - ox, ey - oy, ez - oz
-        length = np.sqrt(dx * dx + dy * dy + dz * dz)
-        dx /= length
-        dy /= length
-        dz /= length
-        ci, cj, ck = ki0, kj0, kk0
-        rx, ry, rz = ox, oy, oz  # where this ray's walk starts
-        if tail > 0.0 and length > tail:
-            rx, ry, rz = ex - dx * tail, ey - dy * tail, ez - dz * tail
-            ci = np.int64(np.floor(rx * inv_res))
-            cj = np.int64(np.floor(ry * inv_res))
-            ck = np.int64(np.floor(rz * inv_res))
-            length = tail
-            if ci == ei and cj == ej and ck == ek:
-                continue
-        si = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
-        sj = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
-        sk = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
-        if si != 0:
-            tmx = ((ci + 0.5) * res + si * res * 0.5 - rx) / dx
-            tdx = res / abs(dx)
-        else:
-            tmx = big
-            tdx = big
-        if sj != 0:
-            tmy = ((cj + 0.5) * res + sj * res * 0.5 - ry) / dy
-            tdy = res / abs(dy)
-        else:
-            tmy = big
-            tdy = big
-        if sk != 0:
-            tmz = ((ck + 0.5) * res + sk * res * 0.5 - rz) / dz
-            tdz = res / abs(dz)
-        else:
-            tmz = big
-            tdz = big
-        max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
         steps = 0
         if n_miss + max_steps + 2 > cap:  # room for this ray's voxels, or the caller grows the buffer
             seen_meta[SEEN_GROW] = GROW_MISSES
@@ -404,30 +449,10 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
             if first > 0:
                 misses[n_miss] = pack_block(ci, cj, ck)
                 n_miss += 1
-            # advance, OctoMap's tie breaking: strict < picks the lower axis only when smaller
-            if tmx < tmy:
-                dim = 0 if tmx < tmz else 2
-            else:
-                dim = 1 if tmy < tmz else 2
-            if dim == 0:
-                ci += si
-                tmx += tdx
-                lin += lsx
-            elif dim == 1:
-                cj += sj
-                tmy += tdy
-                lin += lsy
-            else:
-                ck += sk
-                tmz += tdz
-                lin += lsz
-            if ci == ei and cj == ej and ck == ek:
-                break
-            dist = min(tmx, min(tmy, tmz))
-            if dist > length:
-                break
-            steps += 1
-            if steps > max_steps:
+            dim, ci, cj, ck, tmx, tmy, tmz, steps, more = ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz,
+                                                                   ei, ej, ek, length, steps, max_steps)  # fmt: skip
+            lin += lsx if dim == 0 else (lsy if dim == 1 else lsz)
+            if not more:
                 break
     state[FV_RAY], state[FV_MISSES] = n, n_miss
     return True

@@ -41,7 +41,7 @@ from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import quiet_keys_in_box, with_listed_voxels
+from ..core.projective import quiet_keys_in_box, tail_masks
 from ..core.sensors import transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -81,10 +81,13 @@ def warm_maps(cfg: MapConfig) -> None:
     o, d, q = m.O, m.D, _QuietBlocks
     raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), np.zeros(o.max_blocks, dtype=q.FLAG),
                              o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
-    # the tails' misses put in the projection's masks (LayeredMap.depth_voxels): here, not in
+    # the rays' tails walked into the projection's masks (LayeredMap.depth_voxels): here, not in
     # the projective16 group, the first run's longest (it takes no pixels)
     keys = pack_blocks(np.zeros((1, 3), dtype=np.int64))
-    with_listed_voxels(keys, np.zeros((1, 8), dtype=np.uint64), keys.copy(), np.array([0, 0, 0, 7, 7, 7]))
+    ends = np.array([[0.3, 0.2, 0.1]]) * cfg.resolution * 8
+    tail_masks(np.full(3, 0.01 * cfg.resolution), ends, np.full(1, raycast.RAY_HIT, dtype=np.int8), 1.0 / cfg.resolution,
+               float(cfg.resolution), 0.5 * cfg.resolution, keys, np.zeros((1, 8), dtype=np.uint64),
+               np.array([0, 0, 0, 7, 7, 7]))  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
