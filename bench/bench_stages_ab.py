@@ -5,7 +5,8 @@ figures cannot resolve a change of a few per cent. This runs each scene's log ``
 per code (after one run of each that is not counted: a code's first run may compile its kernels),
 alternating which goes first, each run a fresh process on the serial path (one thread:
 no worker contention), and sums the thread CPU of each ``LayeredMap`` step: the projection
-(``depth_projection``), the rays' voxels (``frame_voxels``: the tails), the map thread's updates
+(``depth_projection``), the rays' voxels (``frame_voxels``: the tails, up to session 19), the
+whole worker part of a depth frame (``depth_voxels``: both, and the tails' masks), the map thread's updates
 (``apply_voxels``, and within it the lists and the masks), the tick rules (``end_tick``), and the
 whole process. Ratios are now / before; a step whose code did not change shows the machine's
 noise between processes (a few per cent). Then every array of the final state is compared: O's
@@ -33,6 +34,7 @@ import bench_long_rays  # noqa: E402  (the scenes and their cached logs)
 import bench_replay  # noqa: E402  (code_at, machine)
 
 STEPS = {  # name: LayeredMap method timed
+    "cast": "depth_voxels",  # a depth frame's worker part: the projection, the tails, their masks
     "projection": "depth_projection",
     "tails": "frame_voxels",
     "apply": "apply_voxels",
