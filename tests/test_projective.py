@@ -180,11 +180,13 @@ def test_quiet_blocks_take_no_projective_miss():
 
 
 def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
-    """The projection skips the blocks the map thread last published as quiet; the map thread
-    fills those quiet no more (``projective_fill``). A wall seen until its free space is quiet, a
-    box appearing in that space (its blocks un-quiet) and taken away: the same O (log-odds,
-    stamps, block order) and D with the list published after every frame, never published, or
-    replaced by every O block (all stale but the quiet ones), and fills happen only in the last."""
+    """The projection skips the quarters the map thread last published as quiet (blocks all
+    quiet whole); the map thread fills the blocks where one of those is quiet no more
+    (``projective_fill``). A wall seen until its free space is quiet, a box appearing in that
+    space (its blocks un-quiet) and taken away: the same O (log-odds, stamps, block order) and D
+    with the list published after every frame, never published, replaced by every O block all
+    quiet or with quarters drawn at random (stale but where quiet), and fills happen only in the
+    last two."""
     import ltmap_cli.core.layers as layers_mod
     from ltmap_cli.core.grid import pack_blocks
 
@@ -206,15 +208,18 @@ def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
     monkeypatch.setattr(layers_mod, "projective_fill", counting_fill)
     monkeypatch.setattr(LayeredMap, "depth_projection", counting_project)
     out, counts = {}, {}
-    for how in ("fresh", "never", "stale", "box"):
+    rng = np.random.default_rng(17)
+    for how in ("fresh", "never", "stale", "quarters", "box"):
         fills.update(n=0, skipped=0)
         m = _map()
         monkeypatch.setattr(layers_mod, "QUIET_LIST_WHOLE", 0 if how == "box" else 2)  # box: the frame's box only
         if how == "never":
             m._publish_quiet = lambda q, box: None
-        elif how == "stale":
-            def every_block(q, box, m=m):
+        elif how in ("stale", "quarters"):
+            def every_block(q, box, m=m, how=how):
                 m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
+                quarters = rng.integers(1, 256, len(m._quiet_keys)) if how == "quarters" else 255
+                m._quiet_quarters = np.zeros(len(m._quiet_keys), dtype=np.uint8) + np.uint8(quarters)
             m._publish_quiet = every_block
         for depth in seq:
             _integrate(m, depth)
@@ -222,10 +227,11 @@ def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
         out[how] = [o.block_coords[: o.n_blocks], o.channel("logodds"), o.channel("stamp"),
                     d.block_coords[: d.n_blocks], d.channel("st"), d.channel("lt")]
         counts[how] = dict(fills)
-    for how in ("never", "stale", "box"):
+    for how in ("never", "stale", "quarters", "box"):
         assert all(np.array_equal(a, b) for a, b in zip(out[how], out["fresh"])), how
     assert counts["fresh"]["skipped"] > 1000 and counts["box"]["skipped"] > 1000 and counts["never"]["skipped"] == 0
-    assert counts["stale"]["n"] > 10 and counts["fresh"]["n"] == 0, counts  # (serial: the list is never stale)
+    assert counts["stale"]["n"] > 10 and counts["quarters"]["n"] > 10, counts
+    assert counts["fresh"]["n"] == 0, counts  # (serial: the list is never stale)
 
 
 def test_a_quiet_list_of_one_box_is_made_whole_again():
@@ -240,17 +246,20 @@ def test_a_quiet_list_of_one_box_is_made_whole_again():
     for _ in range(8):
         _integrate(m, _wall())
     q = m._quiet_sync()
-    idx = np.nonzero(q.quiet[: m.O.n_blocks])[0]
+    idx = np.nonzero(q.qquiet[: m.O.n_blocks])[0]  # blocks with quiet quarters
     every = np.sort(pack_blocks(m.O.block_coords[idx]))
-    assert len(every) > 10
+    assert len(every) > 10 and np.any(q.qquiet[idx] != 255) and np.any(q.qquiet[idx] == 255)
     coords = m.O.block_coords[: m.O.n_blocks].astype(np.int64)
     whole_box = np.concatenate([coords.min(axis=0) << BLOCK_BITS, (coords.max(axis=0) << BLOCK_BITS) + 7])
     one = m.O.block_coords[idx[0]].astype(np.int64) << BLOCK_BITS
     q.update(m, 0)  # (a flag changed: the next frame publishes again)
     m._publish_quiet(q, np.concatenate([one, one + 7]))  # a box of one block: that block only
     assert np.array_equal(m._quiet_keys, pack_blocks(m.O.block_coords[idx[:1]]))
+    assert np.array_equal(m._quiet_quarters, q.qquiet[idx[:1]])
     m._publish_quiet(q, whole_box)  # no flag changed since
     assert np.array_equal(m._quiet_keys, every)
+    by_key = dict(zip(pack_blocks(m.O.block_coords[idx]).tolist(), q.qquiet[idx].tolist()))
+    assert m._quiet_quarters.tolist() == [by_key[k] for k in every.tolist()]
     m._publish_quiet(q, np.concatenate([one, one + 7]))  # a whole list stays: it holds the box's
     assert np.array_equal(m._quiet_keys, every)
 
@@ -315,14 +324,25 @@ def test_projection_listed_in_chunks_is_the_same(monkeypatch):
     chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     assert len(whole.keys) > 7 * 3
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
-    # and with every other block listed as quiet: the skipped blocks' list fills its chunks too
+    # and with every other block listed as quiet, or some of its quarters: the skipped blocks'
+    # list fills its chunks too, and a block's quiet quarters are left out of its mask
+    full = dict(zip(whole.keys.tolist(), whole.masks))
     m._quiet_keys = np.ascontiguousarray(whole.keys[::2])
+    m._quiet_quarters = np.resize(np.array([255, 0x0F, 0xF0, 0x5A, 0x81], dtype=np.uint8), len(m._quiet_keys))
     chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     monkeypatch.setattr(layers, "PROJECTIVE_CHUNK_BLOCKS", 1 << 14)
     whole = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     assert len(whole.skipped) == len(m._quiet_keys) > 7 * 2
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
     assert np.array_equal(whole.skipped, chunked.skipped)
+    assert np.array_equal(whole.skipped & 255, m._quiet_quarters)
+    quarters = dict(zip(m._quiet_keys.tolist(), m._quiet_quarters.tolist()))
+    got = dict(zip(whole.keys.tolist(), whole.masks))
+    for key, mask in full.items():  # by hand: the full mask without the quiet quarters' voxels
+        qq = quarters.get(key, 0)
+        want = [int(mask[w]) & ~sum(0xF << (y * 8 + (q & 1) * 4) for q in range(8) if qq >> q & 1 and q >> 2 == w >> 2
+                                     for y in range((q >> 1 & 1) * 4, (q >> 1 & 1) * 4 + 4)) for w in range(8)]
+        assert ([int(x) for x in got[key]] if key in got else [0] * 8) == want, (key, qq)
 
 
 def _encoded(depth_mm: np.ndarray, float32: bool) -> np.ndarray:
@@ -445,7 +465,7 @@ def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
     none, skipped = np.empty(0, dtype=np.int64), np.empty(64, dtype=np.int64)
     n, ns, nxt = projective_blocks(img, tmin, tmax, dil, f, f, 7.0, 7.0, Tinv, box, res, band, keys, masks, 0,
-                                   none, skipped, 0)  # fmt: skip
+                                   none, none.astype(np.uint8), skipped, 0)  # fmt: skip
     assert nxt == -1 and ns == 0
     blocks = {int(keys[q]): masks[q] for q in range(n)}
     off = voxel_offset(0, 0, k0)
@@ -544,7 +564,7 @@ def test_rim_pixels_stand_for_rays_through_the_voxel(far_from, miss):
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
     none, skipped = np.empty(0, dtype=np.int64), np.empty(64, dtype=np.int64)
     n, _, _ = projective_blocks(img, tmin, tmax, dil, f, f, 20.0, 20.0, Tinv, box, res, band, keys, masks, 0, none,
-                                skipped, 0)  # fmt: skip
+                                none.astype(np.uint8), skipped, 0)  # fmt: skip
     blocks = {int(keys[q]): masks[q] for q in range(n)}
     off = voxel_offset(0, 0, k0)
     word = blocks.get(pack_block(0, 0, k0 >> 3), np.zeros(8, dtype=np.uint64))[off >> 6]

@@ -651,15 +651,18 @@ class _QuietBlocks:
         self.tick = lmap.tick_index
 
 
+_NO_QUARTERS = np.empty(0, dtype=_QuietBlocks.FLAG)
+
+
 class DepthProjection(NamedTuple):
     """The misses the projection makes for one depth image (``LayeredMap.depth_projection``,
     ``core.projective.projective_blocks``): per block its packed coordinates and its voxels' bits;
-    the blocks it skipped as quiet, and what ``projective_fill`` needs to make theirs."""
+    the blocks it skipped quiet quarters of, and what ``projective_fill`` needs to make theirs."""
 
     keys: np.ndarray  # (n,) int64, ascending
     masks: np.ndarray  # (n, 8) uint64
     box: np.ndarray | None = None  # (6,) int64: the frame's voxel box (ends_box)
-    skipped: np.ndarray | None = None  # (m,) int64: numbers in the box of blocks left as quiet
+    skipped: np.ndarray | None = None  # (m,) int64: block numbers in the box * 256 + quarters left as quiet
     fill: tuple | None = None  # projective_fill's arguments before ``blocks``
     hits: tuple | None = None  # (keys, masks) as keys and masks: the frame's hits, when not listed
 
@@ -685,7 +688,9 @@ class LayeredMap:
 
     quiet_blocks = True  # misses in quiet blocks are skipped (see apply_voxels); False: every miss updates
     _quiet: _QuietBlocks | None = None
-    _quiet_keys: np.ndarray = _NO_KEYS  # the quiet blocks as last published for the workers (_publish_quiet)
+    # the blocks with quiet quarters and those quarters as last published for the workers (_publish_quiet)
+    _quiet_keys: np.ndarray = _NO_KEYS
+    _quiet_quarters: np.ndarray = _NO_QUARTERS
     _quiet_keys_version = -1
     _quiet_keys_box: np.ndarray | None = None  # the box they were listed for; None: every quiet block
 
@@ -833,10 +838,10 @@ class LayeredMap:
         R, t = T[:3, :3], T[:3, 3]
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
         band = float(self.cfg.sensor.projective_band)
-        quiet = self._quiet_keys if self.quiet_blocks else _NO_KEYS
+        quiet, quarters = (self._quiet_keys, self._quiet_quarters) if self.quiet_blocks else (_NO_KEYS, _NO_QUARTERS)
         keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box = depth_projection_blocks(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(t), Tinv,
-            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS, quiet,
+            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS, quiet, quarters,
         )  # fmt: skip
         while nxt >= 0:  # the arrays are full: twice the room, and on from the block it stopped at
             if n == len(keys):
@@ -845,7 +850,8 @@ class LayeredMap:
             if ns == len(skipped):
                 skipped = np.concatenate([skipped[:ns], np.empty(ns, dtype=np.int64)])
             m, ns, nxt = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv,
-                                           box, self.resolution, band, keys[n:], masks[n:], nxt, quiet, skipped, ns)  # fmt: skip
+                                           box, self.resolution, band, keys[n:], masks[n:], nxt, quiet, quarters, skipped,
+                                           ns)  # fmt: skip
             n += m
         keys, masks, skipped = keys[:n], masks[:n], skipped[:ns]
         if not len(skipped):
@@ -997,9 +1003,10 @@ class LayeredMap:
         return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
 
     def _fill_stale(self, q: _QuietBlocks, projection: DepthProjection) -> DepthProjection:
-        """The projection with the masks of the blocks its worker skipped as quiet that are quiet no
-        more (the worker saw an older list; ``_publish_quiet``), in key order: what it would have
-        been with the map as the frame begins."""
+        """The projection with the masks of the blocks its worker skipped quarters of as quiet
+        where one of those is quiet no more (the worker saw an older list; ``_publish_quiet``),
+        each block made whole again, in key order: what it would have been with the map as the
+        frame begins."""
         o = self.O
         stale = stale_skips(projection.skipped, projection.box, o.table_keys, o.table_vals, q.qquiet)
         if not len(stale):
@@ -1020,8 +1027,8 @@ class LayeredMap:
 
     def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
         """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,
-        of the quiet O blocks, when their flags changed. A new array each time (a worker may hold
-        the old one). All of them while the map has fewer blocks than twice this depth frame's box
+        of the O blocks with quiet quarters, and those quarters (a byte each), when their flags
+        changed. New arrays each time (a worker may hold the old ones). All of them while the map has fewer blocks than twice this depth frame's box
         (a sort of a few thousand keys); beyond, those of the box only (a lookup per block of the
         box, whatever the map's size: a 100 m floor holds 10^5 blocks; the next frames' boxes are
         about the same, and a block left out is only not skipped), also when the box moved. A
@@ -1037,10 +1044,12 @@ class LayeredMap:
         if q.version == self._quiet_keys_version and (listed is None or (not whole and np.array_equal(box, listed))):
             return
         if whole:
-            idx = np.nonzero(q.qquiet[: o.n_blocks] == QUIET_ALL)[0]
-            self._quiet_keys = np.sort(pack_blocks(o.block_coords[idx]))
+            idx = np.nonzero(q.qquiet[: o.n_blocks])[0]
+            keys = pack_blocks(o.block_coords[idx])
+            order = np.argsort(keys)
+            self._quiet_keys, self._quiet_quarters = keys[order], q.qquiet[idx[order]]
         else:
-            self._quiet_keys = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.qquiet)
+            self._quiet_keys, self._quiet_quarters = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.qquiet)
         self._quiet_keys_version, self._quiet_keys_box = q.version, None if whole else box
 
     def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:

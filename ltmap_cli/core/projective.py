@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from .grid import _PACK_BITS, BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
-from .raycast import QUIET_ALL, RAY_HIT, RAY_SKIP, ray_start, ray_step
+from .raycast import QUARTER_KEEP, QUIET_ALL, RAY_HIT, RAY_SKIP, ray_start, ray_step
 
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -289,9 +289,10 @@ def _fill_scratch():
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes, e, mask,
-                fs, ks):  # fmt: skip
-    """The miss bits of a FRONT or MIXED block into ``mask`` (8,); True when it has any. ``fs``, ``ks``:
-    ``_fill_scratch``."""
+                fs, ks, qskip):  # fmt: skip
+    """The miss bits of a FRONT or MIXED block into ``mask`` (8,), but for its quarters in
+    ``qskip`` (a bit each, ``core.raycast.quarter_of``'s numbering: quiet ones); True when it
+    has any. ``fs``, ``ks``: ``_fill_scratch``."""
     ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2 = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
     full = ~np.uint64(0)
     Q = BLOCK // 2
@@ -299,13 +300,15 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
     vpix, vcode = ks[0], ks[1]
     flat = reach.reshape(-1)
     if cls == FRONT:  # every voxel's centre is nearer than its pixel's range - band
-        for t in range(8):
-            mask[t] = full
-        return True
+        for t in range(8):  # (word t: voxels x = t; its quarters' bits are those of x half t >> 2)
+            mask[t] = full & QUARTER_KEEP[(qskip >> ((t >> 2) << 2)) & 15]
+        return qskip != QUIET_ALL
     for t in range(8):
         mask[t] = 0
     found = False
     for sub in range(8):  # the block's quarters (4 x 4 x 4)
+        if (qskip >> sub) & 1:
+            continue
         sa, sc, se = (sub >> 2) * Q, ((sub >> 1) & 1) * Q, (sub & 1) * Q
         g2 = 0.5 * (Q - 1)
         qcls, qlo, qhi = _classify(px0 + ex0 * (sa + g2) + ey0 * (sc + g2) + ez0 * (se + g2),
@@ -403,7 +406,7 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, start,
-                      quiet_keys, skipped, n_skipped):  # fmt: skip
+                      quiet_keys, quiet_quarters, skipped, n_skipped):  # fmt: skip
     """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive)
     that the projection makes misses, block by block: the block's packed coordinates
     (``grid.pack_block``) into ``keys`` and its voxels' bits (``grid.voxel_offset`` order) into
@@ -419,11 +422,12 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     4 x 4 x 4 quarters, that surely hold no miss are skipped and those that surely are all misses
     are taken whole (``_classify``), without testing their voxels.
 
-    ``quiet_keys``: sorted packed keys of O blocks that were quiet (``LayeredMap.apply_voxels``:
-    a miss there changes nothing) when the map thread last published them; a block in the
-    frustum that is one of them is not filled: its number in the box goes to ``skipped``
-    (from ``n_skipped`` on), for the map thread to fill if it is quiet no more
-    (``projective_fill``). The result is the same either way."""
+    ``quiet_keys``: sorted packed keys of O blocks with quiet quarters (``LayeredMap.apply_voxels``:
+    a miss there changes nothing) when the map thread last published them, ``quiet_quarters``
+    theirs (a byte, a bit a quarter); the quiet quarters of a block in the frustum are not
+    filled (a block all quiet not at all): its number in the box times 256 plus those quarters
+    go to ``skipped`` (from ``n_skipped`` on), for the map thread to fill the block if they are
+    quiet no more (``stale_skips``, ``projective_fill``). The result is the same either way."""
     h, w = reach.shape
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
     bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
@@ -450,13 +454,16 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
         key = pack_block(bi, bj, bk)
         while qi < nq and quiet_keys[qi] < key:  # (the blocks come in key order: a merge walk, no
             qi += 1  # search; np.searchsorted cost the first run 0.9 s of compiling)
+        qskip = np.int64(0)
         if qi < nq and quiet_keys[qi] == key:
-            skipped[n_skipped] = b
+            qskip = np.int64(quiet_quarters[qi])
+            skipped[n_skipped] = b * 256 + qskip
             n_skipped += 1
-            continue
+            if qskip == QUIET_ALL:
+                continue
         keys[n] = key
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
-                       e, masks[n], fs, ks):  # fmt: skip
+                       e, masks[n], fs, ks, qskip):  # fmt: skip
             n += 1
     return n, n_skipped, -1
 
@@ -484,7 +491,7 @@ def projective_fill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band
             continue
         keys[n] = pack_block(bi, bj, bk)
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
-                       e, masks[n], fs, ks):  # fmt: skip
+                       e, masks[n], fs, ks, np.int64(0)):  # fmt: skip
             blocks[n] = b
             n += 1
     return n
@@ -492,12 +499,12 @@ def projective_fill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_range, band, ends, res, chunk,
-                            quiet_keys):  # fmt: skip
+                            quiet_keys, quiet_quarters):  # fmt: skip
     """``depth_range_image``, the frame's box (``ends_box``) and ``projective_blocks`` in one call
     (a worker thread then takes the GIL once for them instead of three times, with numpy in
     between): (keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box): ``n`` blocks with
-    misses in ``keys``, ``masks``, the numbers of ``ns`` blocks skipped as ``quiet_keys`` in
-    ``skipped``, and the range image, tiles and box (``projective_fill`` needs them). The arrays
+    misses in ``keys``, ``masks``, ``ns`` blocks with quarters skipped as quiet (``quiet_keys``,
+    ``quiet_quarters``) in ``skipped``, and the range image, tiles and box (``projective_fill`` needs them). The arrays
     hold ``chunk`` blocks (memory follows the frustum's free space, not the box: a box at 0.01 m
     holds millions of blocks); when they are full, ``nxt`` >= 0 is the block to go on from with
     ``projective_blocks`` in larger arrays (``LayeredMap.depth_projection``; in Python: the growth
@@ -514,7 +521,7 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     skipped = np.empty(cap, dtype=np.int64)
     zero = np.int64(0)  # (not a literal 0: numba would compile projective_blocks twice, 1.2 s)
     n, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, zero,
-                                   quiet_keys, skipped, zero)  # fmt: skip
+                                   quiet_keys, quiet_quarters, skipped, zero)  # fmt: skip
     return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
 
 
@@ -647,35 +654,41 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box):
 
 @njit(cache=True, nogil=True)
 def quiet_keys_in_box(box, table_keys, table_vals, qquiet):
-    """The packed keys of the quiet O blocks (``qquiet`` by O block: all quarters quiet) among the blocks of the voxel
-    box ``box``, ascending (walked in x, y, z order: ``pack_block``'s order). Reads the map: the
-    thread that owns it; costs a lookup per block of the box, whatever the map's size."""
+    """(keys, quarters): the packed keys of the O blocks with quiet quarters (``qquiet`` by O
+    block, a bit a quarter) among the blocks of the voxel box ``box``, ascending (walked in x, y,
+    z order: ``pack_block``'s order), and their quiet quarters. Reads the map: the thread that
+    owns it; costs a lookup per block of the box, whatever the map's size."""
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
     bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
-    out = np.empty((bi1 - bi0 + 1) * (bj1 - bj0 + 1) * (bk1 - bk0 + 1), dtype=np.int64)
+    nb = (bi1 - bi0 + 1) * (bj1 - bj0 + 1) * (bk1 - bk0 + 1)
+    out = np.empty(nb, dtype=np.int64)
+    quarters = np.empty(nb, dtype=np.uint8)
     n = 0
     for bi in range(bi0, bi1 + 1):
         for bj in range(bj0, bj1 + 1):
             for bk in range(bk0, bk1 + 1):
                 ob = find_block(table_keys, table_vals, bi, bj, bk)
-                if ob >= 0 and qquiet[ob] == QUIET_ALL:
+                if ob >= 0 and qquiet[ob] != 0:
                     out[n] = pack_block(bi, bj, bk)
+                    quarters[n] = qquiet[ob]
                     n += 1
-    return out[:n]
+    return out[:n], quarters[:n]
 
 
 @njit(cache=True, nogil=True)
 def stale_skips(skipped, box, table_keys, table_vals, qquiet):
-    """Of the box's blocks ``skipped`` as quiet by a worker, those that are not quiet now (or not
-    in O: a map loaded since), in order, as a new array. Reads the map: the thread that owns it."""
+    """Of the box's blocks a worker skipped quarters of as quiet (``skipped``: block number * 256
+    + those quarters, ``projective_blocks``), the numbers of those with one of them not quiet now
+    (or not in O: a map loaded since), in order, as a new array. Reads the map: the thread that
+    owns it."""
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
     nbj, nbk = (box[4] >> BLOCK_BITS) - bj0 + 1, (box[5] >> BLOCK_BITS) - bk0 + 1
     out = np.empty(skipped.shape[0], dtype=np.int64)
     n = 0
     for t in range(skipped.shape[0]):
-        b = skipped[t]
+        b, qs = skipped[t] >> 8, skipped[t] & 255
         ob = find_block(table_keys, table_vals, bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk)
-        if ob < 0 or qquiet[ob] != QUIET_ALL:
+        if ob < 0 or (np.int64(qquiet[ob]) & qs) != qs:
             out[n] = b
             n += 1
     return out[:n]
