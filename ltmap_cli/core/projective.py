@@ -614,12 +614,8 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box):
         kd = kind[r]
         if kd == RAY_SKIP:
             continue
-        ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
-        ei = np.int64(np.floor(ex * inv_res))
-        ej = np.int64(np.floor(ey * inv_res))
-        ek = np.int64(np.floor(ez * inv_res))
-        walk, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
-            ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, tail)  # fmt: skip
+        walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
+            ox, oy, oz, ki0, kj0, kk0, ends[r, 0], ends[r, 1], ends[r, 2], inv_res, res, tail)  # fmt: skip
         # the ray's voxels: its end voxel first when a hit (words 8 to 15), then each voxel its
         # walk passes up to the end voxel (not walked): a miss
         hit = kd == RAY_HIT

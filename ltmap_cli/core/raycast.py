@@ -257,15 +257,28 @@ RAY_FAR = 1e300  # a DDA's next crossing along an axis the ray does not move alo
 
 
 @njit(cache=True, nogil=True, inline="always")
-def ray_start(ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, tail):
+def _axis_start(c, s, d, r, res):
+    """The DDA's first crossing and its step along one axis (voxel c, step s, direction d, start
+    r): (tm, td); never (``RAY_FAR``) along an axis the ray does not move along."""
+    if s != 0:
+        return ((c + 0.5) * res + s * res * 0.5 - r) / d, res / abs(d)
+    return RAY_FAR, RAY_FAR
+
+
+@njit(cache=True, nogil=True, inline="always")
+def ray_start(ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, inv_res, res, tail):
     """The Amanatides & Woo DDA's start for the ray from (ox, oy, oz) (voxel (ki0, kj0, kk0)) to
-    (ex, ey, ez) (voxel (ei, ej, ek)), OctoMap's ``computeRayKeys`` arithmetic: (walk, ci, cj, ck,
-    si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps). walk is False when no voxel is
-    walked (the end in the origin's voxel, or a tail that starts in the end voxel). ``tail`` > 0:
-    the walk starts ``tail`` metres before the end (the rays' tails of projective depth
-    integration), and length is tail. ``ray_step`` takes the walk on from (ci, cj, ck)."""
+    (ex, ey, ez), OctoMap's ``computeRayKeys`` arithmetic: (walk, ei, ej, ek, ci, cj, ck, si, sj,
+    sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps), (ei, ej, ek) the end voxel. walk is
+    False when no voxel is walked (the end in the origin's voxel, or a tail that starts in the
+    end voxel). ``tail`` > 0: the walk starts ``tail`` metres before the end (the rays' tails of
+    projective depth integration), and length is tail. ``ray_step`` takes the walk on from
+    (ci, cj, ck)."""
+    ei = np.int64(np.floor(ex * inv_res))
+    ej = np.int64(np.floor(ey * inv_res))
+    ek = np.int64(np.floor(ez * inv_res))
     if ei == ki0 and ej == kj0 and ek == kk0:
-        return False, ki0, kj0, kk0, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+        return False, ei, ej, ek, ki0, kj0, kk0, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
     dx, dy, dz = ex - ox, ey - oy, ez - oz
     length = np.sqrt(dx * dx + dy * dy + dz * dz)
     dx /= length
@@ -280,30 +293,15 @@ def ray_start(ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, t
         ck = np.int64(np.floor(rz * inv_res))
         length = tail
         if ci == ei and cj == ej and ck == ek:
-            return False, ci, cj, ck, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
+            return False, ei, ej, ek, ci, cj, ck, 0, 0, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0
     si = 1 if dx > 0.0 else (-1 if dx < 0.0 else 0)
     sj = 1 if dy > 0.0 else (-1 if dy < 0.0 else 0)
     sk = 1 if dz > 0.0 else (-1 if dz < 0.0 else 0)
-    if si != 0:
-        tmx = ((ci + 0.5) * res + si * res * 0.5 - rx) / dx
-        tdx = res / abs(dx)
-    else:
-        tmx = RAY_FAR
-        tdx = RAY_FAR
-    if sj != 0:
-        tmy = ((cj + 0.5) * res + sj * res * 0.5 - ry) / dy
-        tdy = res / abs(dy)
-    else:
-        tmy = RAY_FAR
-        tdy = RAY_FAR
-    if sk != 0:
-        tmz = ((ck + 0.5) * res + sk * res * 0.5 - rz) / dz
-        tdz = res / abs(dz)
-    else:
-        tmz = RAY_FAR
-        tdz = RAY_FAR
+    tmx, tdx = _axis_start(ci, si, dx, rx, res)
+    tmy, tdy = _axis_start(cj, sj, dy, ry, res)
+    tmz, tdz = _axis_start(ck, sk, dz, rz, res)
     max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
-    return True, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps
+    return True, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -414,12 +412,8 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
     for r in range(state[FV_RAY], n):
         if kind[r] == RAY_SKIP:
             continue
-        ex, ey, ez = ends[r, 0], ends[r, 1], ends[r, 2]
-        ei = np.int64(np.floor(ex * inv_res))
-        ej = np.int64(np.floor(ey * inv_res))
-        ek = np.int64(np.floor(ez * inv_res))
-        walk, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
-            ox, oy, oz, ki0, kj0, kk0, ex, ey, ez, ei, ej, ek, inv_res, res, tail)  # fmt: skip
+        walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
+            ox, oy, oz, ki0, kj0, kk0, ends[r, 0], ends[r, 1], ends[r, 2], inv_res, res, tail)  # fmt: skip
         if not walk:
             continue
         steps = 0
