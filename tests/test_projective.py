@@ -597,6 +597,7 @@ def test_tail_masks_by_hand():
     keys ascending, new blocks added in key order; a voxel outside the frame's box refuses (the
     caller lists the frame's voxels instead)."""
     from ltmap_cli.core.grid import pack_blocks
+    from ltmap_cli.core.projective import LISTED_VOXELS_MAX_BLOCKS as LIMIT
     from ltmap_cli.core.projective import tail_masks
     from ltmap_cli.core.raycast import RAY_CLEAR, RAY_HIT, RAY_SKIP
 
@@ -614,7 +615,7 @@ def test_tail_masks_by_hand():
         [0.9, 0.1, 0.5],  # a hit in the origin's voxel: nothing walked
     ])  # fmt: skip
     kind = np.array([RAY_HIT, RAY_CLEAR, RAY_SKIP, RAY_HIT, RAY_HIT], dtype=np.int8)
-    keys, masks, hkeys, hmasks, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 3.0, pkeys, pmasks, box)
+    keys, masks, hkeys, hmasks, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 3.0, pkeys, pmasks, box, LIMIT)
     assert ok
     # blocks (-1,0,0) and (1,1,0), and new: (0,0,0), (1,0,0) (x 8, 9) and (0,1,0) (y 9 to 11)
     assert np.all(np.diff(keys) > 0) and len(keys) == 5
@@ -623,13 +624,16 @@ def test_tail_masks_by_hand():
     assert np.all(np.diff(hkeys) > 0) and len(hkeys) == 2  # blocks (0,0,0) and (1,0,0) only
     assert _mask_voxels(hkeys, hmasks) == {(10, 0, 0), (0, 0, 2), (0, 0, 0)}
     # a tail of 1.5 m: from x = 9, y = 11, z = 1
-    keys, masks, _, _, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 1.5, pkeys[:0], pmasks[:0], box)
+    keys, masks, _, _, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 1.5, pkeys[:0], pmasks[:0], box, LIMIT)
     assert ok and _mask_voxels(keys, masks) == {(9, 0, 0), (0, 11, 0), (0, 0, 1)}
     small = np.array([-16, 0, 0, 7, 15, 7], dtype=np.int64)  # the first ray's tail and hit are beyond it
-    assert not tail_masks(origin, ends, kind, 1.0, 1.0, 3.0, pkeys, pmasks, small)[4]
+    assert not tail_masks(origin, ends, kind, 1.0, 1.0, 3.0, pkeys, pmasks, small, LIMIT)[4]
     narrow = np.array([-16, 0, 0, 23, 7, 7], dtype=np.int64)  # the clear ray's tail (y 10, 11) is beyond it
-    assert not tail_masks(origin, ends[1:2], kind[1:2], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow)[4]
-    assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow)[4]
+    assert not tail_masks(origin, ends[1:2], kind[1:2], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow, LIMIT)[4]
+    assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow, LIMIT)[4]
+    # a box of more blocks than the limit refuses (``box`` holds 10)
+    assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], box, 9)[4] is False
+    assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], box, 10)[4] is True
 
 
 def test_tail_masks_are_the_listed_tails():
@@ -637,7 +641,7 @@ def test_tail_masks_are_the_listed_tails():
     misses ``tail_masks`` sets beside the projection's are the tails' misses ``frame_voxels``
     lists, bar the voxels the frame hits (left to the map thread: a voxel updated once a
     frame, hits first), and its hits are ``frame_voxels``' hits."""
-    from ltmap_cli.core.projective import ends_box, tail_masks
+    from ltmap_cli.core.projective import LISTED_VOXELS_MAX_BLOCKS, ends_box, tail_masks
 
     m = _map()
     scene = _wall(4200)
@@ -655,7 +659,8 @@ def test_tail_masks_are_the_listed_tails():
         empty_keys, empty_masks = np.empty(0, dtype=np.int64), np.empty((0, 8), dtype=np.uint64)
         box = ends_box(np.ascontiguousarray(T[:3, 3]), ends, 1.0 / m.resolution)
         keys, masks, hkeys, hmasks, ok = tail_masks(np.ascontiguousarray(T[:3, 3]), ends, kind, 1.0 / m.resolution,
-                                                    m.resolution, tail, empty_keys, empty_masks, box)  # fmt: skip
+                                                    m.resolution, tail, empty_keys, empty_masks, box,
+                                                    LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
         assert ok and len(misses) > 500 and len(hits) > 100
         hit_set = set(_unpack_voxels(hits))
         assert _mask_voxels(hkeys, hmasks) == hit_set

@@ -664,7 +664,7 @@ class DepthProjection(NamedTuple):
     box: np.ndarray | None = None  # (6,) int64: the frame's voxel box (ends_box)
     skipped: np.ndarray | None = None  # (m,) int64: block numbers in the box * 256 + quarters left as quiet
     fill: tuple | None = None  # projective_fill's arguments before ``blocks``
-    hits: tuple | None = None  # (keys, masks) as keys and masks: the frame's hits, when not listed
+    hits: tuple | None = None  # (keys, masks): the frame's hits as block masks (core.projective.tail_masks)
 
 
 def _depth_view(depth: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -907,13 +907,12 @@ class LayeredMap:
         if self.cfg.sensor.depth_integration != "projective":
             return (*self.frame_voxels(T[:3, 3], ends, kind), None)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
-        box = projection.box
-        if int(np.prod((box[3:] >> BLOCK_BITS) - (box[:3] >> BLOCK_BITS) + 1)) <= LISTED_VOXELS_MAX_BLOCKS:
-            origin = np.ascontiguousarray(T[:3, 3], dtype=np.float64)
-            keys, masks, hk, hm, ok = tail_masks(origin, ends, kind, 1.0 / self.resolution, self.resolution,
-                                                 self.projective_tail(), projection.keys, projection.masks, box)  # fmt: skip
-            if ok:
-                return _NO_KEYS, _NO_KEYS, projection._replace(keys=keys, masks=masks, hits=(hk, hm))
+        keys, masks, hk, hm, ok = tail_masks(np.ascontiguousarray(T[:3, 3], dtype=np.float64), ends, kind,
+                                             1.0 / self.resolution, self.resolution, self.projective_tail(),
+                                             projection.keys, projection.masks, projection.box,
+                                             LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
+        if ok:
+            return _NO_KEYS, _NO_KEYS, projection._replace(keys=keys, masks=masks, hits=(hk, hm))
         hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
         return hits, misses, projection
 
@@ -1028,8 +1027,8 @@ class LayeredMap:
     def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
         """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,
         of the O blocks with quiet quarters, and those quarters (a byte each), when their flags
-        changed. New arrays each time (a worker may hold the old ones). All of them while the map has fewer blocks than twice this depth frame's box
-        (a sort of a few thousand keys); beyond, those of the box only (a lookup per block of the
+        changed. New arrays each time (a worker may hold the old ones). All of them while the map
+        has fewer blocks than twice this depth frame's box (a sort of a few thousand keys); beyond, those of the box only (a lookup per block of the
         box, whatever the map's size: a 100 m floor holds 10^5 blocks; the next frames' boxes are
         about the same, and a block left out is only not skipped), also when the box moved. A
         list of one box's blocks is made again when the next frame takes the whole list, though

@@ -26,9 +26,12 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import _PACK_BITS, BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
+from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
 from .raycast import QUARTER_KEEP, QUIET_ALL, RAY_HIT, RAY_SKIP, ray_start, ray_step
 
+# a block whose quiet quarters a worker skipped is listed as (its number in the box << SKIP_SHIFT)
+# | those quarters (projective_blocks, stale_skips)
+SKIP_SHIFT = 8
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
 PROJECTIVE_CHUNK_BLOCKS = 1 << 14  # blocks with misses listed per call of projective_blocks (1.2 MB)
@@ -425,8 +428,8 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     ``quiet_keys``: sorted packed keys of O blocks with quiet quarters (``LayeredMap.apply_voxels``:
     a miss there changes nothing) when the map thread last published them, ``quiet_quarters``
     theirs (a byte, a bit a quarter); the quiet quarters of a block in the frustum are not
-    filled (a block all quiet not at all): its number in the box times 256 plus those quarters
-    go to ``skipped`` (from ``n_skipped`` on), for the map thread to fill the block if they are
+    filled (a block all quiet not at all): its number in the box and those quarters
+    (``SKIP_SHIFT``) go to ``skipped`` (from ``n_skipped`` on), for the map thread to fill the block if they are
     quiet no more (``stale_skips``, ``projective_fill``). The result is the same either way."""
     h, w = reach.shape
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
@@ -457,7 +460,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
         qskip = np.int64(0)
         if qi < nq and quiet_keys[qi] == key:
             qskip = np.int64(quiet_quarters[qi])
-            skipped[n_skipped] = b * 256 + qskip
+            skipped[n_skipped] = (b << SKIP_SHIFT) | qskip
             n_skipped += 1
             if qskip == QUIET_ALL:
                 continue
@@ -525,11 +528,6 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
 
 
-# a frame box of more blocks keeps its hits and tail misses as lists (tail_masks' tables of the
-# box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
-LISTED_VOXELS_MAX_BLOCKS = 1 << 18
-
-
 # a frame box of more blocks keeps its hits and tail misses as lists (tail_masks' table of the
 # box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
 LISTED_VOXELS_MAX_BLOCKS = 1 << 18
@@ -558,14 +556,15 @@ def _rows_in_key_order(slot, keys, masks, m, w0):
 
 
 @njit(cache=True, nogil=True)
-def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box):
+def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_blocks):
     """The rays' tails and hits of a depth frame straight into block masks, with the
     projection's: (keys, masks, hit keys, hit masks, True), keys ascending; the masks hold the
     projection's blocks (``pkeys`` ascending, ``pmasks``) with the misses of every ray's last
     ``tail`` metres (``core.raycast``'s DDA: ``ray_start``, ``ray_step``) set in them, the hit
-    masks the end voxels of the hit rays. (empty, empty, empty, empty, False) when a voxel lies
-    outside the frame's voxel box ``box`` (a step past a ray's end: the caller lists the frame's
-    voxels instead, ``frame_voxels``).
+    masks the end voxels of the hit rays. (empty, empty, empty, empty, False) when the frame's
+    voxel box ``box`` holds more than ``max_blocks`` blocks (``LISTED_VOXELS_MAX_BLOCKS``) or a
+    voxel lies outside it (a step past a ray's end): the caller lists the frame's voxels
+    instead (``frame_voxels``).
 
     One table row per block of the box that has any: words 0 to 7 its misses, 8 to 15 its hits.
     A voxel set twice is set once, so no "listed already" bitmap is kept and nothing is listed;
@@ -580,6 +579,10 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box):
     nbk = (box[5] >> BLOCK_BITS) - bk0 + 1
     ubi, ubj, ubk = np.uint64(nbi), np.uint64(nbj), np.uint64(nbk)
     nb = nbi * nbj * nbk
+    no_masks = np.empty((0, 8), dtype=np.uint64)
+    refused = (pkeys[:0], no_masks, pkeys[:0], no_masks, False)
+    if nb > max_blocks:
+        return refused
     rays = 0
     for r in range(kind.shape[0]):
         rays += kind[r] != RAY_SKIP
@@ -594,8 +597,6 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box):
         slot[t] = -1
     keys = np.empty(cap, dtype=np.int64)
     masks = np.empty((cap, 16), dtype=np.uint64)
-    no_masks = np.empty((0, 8), dtype=np.uint64)
-    refused = (keys[:0], no_masks, keys[:0], no_masks, False)
     for t in range(n):
         bi, bj, bk = unpack_block(pkeys[t])
         if not (bi0 <= bi < bi0 + nbi and bj0 <= bj < bj0 + nbj and bk0 <= bk < bk0 + nbk):
@@ -673,8 +674,8 @@ def quiet_keys_in_box(box, table_keys, table_vals, qquiet):
 
 @njit(cache=True, nogil=True)
 def stale_skips(skipped, box, table_keys, table_vals, qquiet):
-    """Of the box's blocks a worker skipped quarters of as quiet (``skipped``: block number * 256
-    + those quarters, ``projective_blocks``), the numbers of those with one of them not quiet now
+    """Of the box's blocks a worker skipped quarters of as quiet (``skipped``: block number <<
+    ``SKIP_SHIFT`` | those quarters, ``projective_blocks``), the numbers of those with one of them not quiet now
     (or not in O: a map loaded since), in order, as a new array. Reads the map: the thread that
     owns it."""
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
@@ -682,7 +683,7 @@ def stale_skips(skipped, box, table_keys, table_vals, qquiet):
     out = np.empty(skipped.shape[0], dtype=np.int64)
     n = 0
     for t in range(skipped.shape[0]):
-        b, qs = skipped[t] >> 8, skipped[t] & 255
+        b, qs = skipped[t] >> SKIP_SHIFT, skipped[t] & QUIET_ALL
         ob = find_block(table_keys, table_vals, bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk)
         if ob < 0 or (np.int64(qquiet[ob]) & qs) != qs:
             out[n] = b

@@ -87,7 +87,7 @@ def warm_maps(cfg: MapConfig) -> None:
     ends = np.array([[0.3, 0.2, 0.1]]) * cfg.resolution * 8
     tail_masks(np.full(3, 0.01 * cfg.resolution), ends, np.full(1, raycast.RAY_HIT, dtype=np.int8), 1.0 / cfg.resolution,
                float(cfg.resolution), 0.5 * cfg.resolution, keys, np.zeros((1, 8), dtype=np.uint64),
-               np.array([0, 0, 0, 7, 7, 7]))  # fmt: skip
+               np.array([0, 0, 0, 7, 7, 7]), np.int64(1))  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
