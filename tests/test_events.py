@@ -121,6 +121,24 @@ def test_grouping_separates_space_and_time():
     assert set(members[first["id"]].tolist()) == {(0 << 6) | 5, (1 << 6) | 5}
 
 
+def test_events_starting_together_are_numbered_by_place_not_by_storage_order():
+    """Two pillars entering LT at the same tick: their events' ids follow their place (least
+    voxel key), whatever order D stored their blocks and the tick buffer listed their voxels in
+    (which depends on how a frame's updates were batched: lists or block masks)."""
+    near, far = [1, 0, (2 << 6) | 5, 40, 10], [1, 1, (3 << 6) | 5, 40, 12]  # (kind, block, offset, tick, start)
+    coords = np.array([[0, 0, 0], [5, 0, 0]], dtype=np.int32)  # block 0 at the origin, block 1 at x = 40 voxels
+    runs = []
+    for swap in (False, True):
+        tr = np.array([far, near] if swap else [near, far])
+        c = coords
+        if swap:  # the blocks stored the other way round
+            c = coords[::-1].copy()
+            tr[:, 1] = 1 - tr[:, 1]
+        events, _ = find_events(tr, c, 0.05, TickClock(0.0, 0.2))
+        runs.append([(e["id"], e["kind"], round(e["centroid"][0], 3)) for e in events])
+    assert runs[0] == runs[1] == [(1, "appear", 0.125), (2, "appear", 2.175)]
+
+
 def test_event_latency_is_first_sight_to_first_in_map():
     """Issue 8's definition: from the first tick any voxel of the event was an obstacle to the
     first tick P shows any of them; the per-voxel median is kept beside it."""

@@ -631,6 +631,11 @@ def test_tail_masks_by_hand():
     narrow = np.array([-16, 0, 0, 23, 7, 7], dtype=np.int64)  # the clear ray's tail (y 10, 11) is beyond it
     assert not tail_masks(origin, ends[1:2], kind[1:2], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow, LIMIT)[4]
     assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], narrow, LIMIT)[4]
+    # no tail (0): whole rays, from the origin's voxel (``LayeredMap.ray_voxels``: scans, clouds)
+    keys, masks, hkeys, hmasks, ok = tail_masks(origin, ends, kind, 1.0, 1.0, 0.0, pkeys[:0], pmasks[:0], box, LIMIT)
+    assert ok and _mask_voxels(hkeys, hmasks) == {(10, 0, 0), (0, 0, 2), (0, 0, 0)}
+    assert _mask_voxels(keys, masks) == ({(x, 0, 0) for x in range(10)} | {(0, y, 0) for y in range(12)}
+                                         | {(0, 0, 0), (0, 0, 1)})  # fmt: skip
     # a box of more blocks than the limit refuses (``box`` holds 10)
     assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], box, 9)[4] is False
     assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], box, 10)[4] is True

@@ -90,7 +90,8 @@ def _run(frames, quiet: bool, mode: str, ahead: int = 0):
         if mode == "integrate":
             m.integrate_rays(origin, ends, kind)
         else:
-            pending.append(m.frame_voxels(origin, ends, kind))
+            hits, misses, masks = m.ray_voxels(origin, ends, kind)
+            pending.append((hits, misses, int((kind > 0).sum()), masks))
             if len(pending) > ahead:
                 m.apply_voxels(*pending.pop(0))
         if f % 6 == 5:

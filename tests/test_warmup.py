@@ -58,25 +58,27 @@ def test_replay_compiles_nothing_the_warm_up_did_not(tmp_path):
 
 def test_replay_groups():
     cfg = Config()
-    assert replay_groups(cfg.replay) == ["rays", "maps"]
-    assert replay_groups(cfg.replay, raw_depth=True) == ["rays", "maps", "depth16", "projective16"]
-    assert replay_groups(cfg.replay, raw_depth=True, projective=False) == ["rays", "maps", "depth16"]
+    assert replay_groups(cfg.replay) == ["rays", "lists", "maps"]
+    assert replay_groups(cfg.replay, raw_depth=True) == ["rays", "lists", "maps", "depth16", "projective16"]
+    assert replay_groups(cfg.replay, raw_depth=True, projective=False) == ["rays", "lists", "maps", "depth16"]
     cfg.replay.mcap_out, cfg.replay.plan_goal = True, [1.0, 2.0]
-    assert replay_groups(cfg.replay) == ["rays", "maps", "fused_scan", "planner"]
+    assert replay_groups(cfg.replay) == ["rays", "lists", "maps", "fused_scan", "planner"]
     assert set(replay_groups(cfg.replay, raw_depth=True)) <= set(GROUPS) == set(COMPILE_S)
 
 
 def test_children_share_the_groups_by_their_compiling():
     """At most cores + 1 children, the costliest group first, each to the child with the least
-    so far: on 2 cores the depth replay's four groups in three children (by hand from COMPILE_S:
-    projective16 11.4 alone; rays 7.7; maps 6.4 + depth16 3.4 = 9.8), one each with cores to spare."""
-    four = ["rays", "maps", "depth16", "projective16"]
-    assert children_of(four, 2) == [["projective16"], ["rays"], ["maps", "depth16"]]
-    assert children_of(four, 8) == [["projective16"], ["rays"], ["maps"], ["depth16"]]
-    assert children_of(four, 1) == [["projective16", "depth16"], ["rays", "maps"]]
-    six = four + ["fused_scan", "planner"]
-    assert children_of(six, 2) == [["projective16"], ["rays", "planner"], ["maps", "depth16", "fused_scan"]]
-    assert sorted(g for c in children_of(six, 2) for g in c) == sorted(six) and children_of([], 2) == []
+    so far: on 2 cores the depth replay's five groups in three children (by hand from COMPILE_S:
+    projective16 13.8 alone; lists 8.7 + depth16 2.6 = 11.3; maps 7.8 + rays 6.5 = 14.3), one
+    each with cores to spare."""
+    five = ["rays", "lists", "maps", "depth16", "projective16"]
+    assert children_of(five, 2) == [["projective16"], ["lists", "depth16"], ["maps", "rays"]]
+    assert children_of(five, 8) == [["projective16"], ["lists"], ["maps"], ["rays"], ["depth16"]]
+    assert children_of(five, 1) == [["projective16", "rays"], ["lists", "maps", "depth16"]]
+    # planner 2.6 to lists (11.3 -> 13.9), then fused_scan 1.1 to projective16 (13.8)
+    seven = five + ["fused_scan", "planner"]
+    assert children_of(seven, 2) == [["projective16", "fused_scan"], ["lists", "depth16", "planner"], ["maps", "rays"]]
+    assert sorted(g for c in children_of(seven, 2) for g in c) == sorted(seven) and children_of([], 2) == []
 
 
 def test_background_compile_says_each_group_ended():
@@ -214,7 +216,7 @@ def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path,
             out.append(image("/cam/depth/image_raw", t + 1, px, encoding=encoding, frame_id="cam"))
         return out
 
-    base = ["rays", "maps"]
+    base = ["rays", "lists", "maps"]
     got = _first_run_groups(tmp_path, monkeypatch, "d32", place + depth_msgs("32FC1"))
     assert got == [base + ["depth32", "projective32"]]
     got = _first_run_groups(tmp_path, monkeypatch, "d16", place + depth_msgs("16UC1"))
@@ -251,7 +253,7 @@ def test_a_first_run_waits_for_another_ones_compiling_instead_of_compiling_besid
 
     monkeypatch.setattr(warmup.subprocess, "Popen", Child)
     first = BackgroundCompile(["rays", "maps"], folder=tmp_path)  # a first run: compiles, holds the lock
-    assert not first.waiting and spawned == [["rays"], ["maps"]]
+    assert not first.waiting and spawned == [["maps"], ["rays"]]  # (the costlier first: COMPILE_S)
     second = BackgroundCompile(["rays", "maps"], folder=tmp_path)  # another, meanwhile: waits
     assert second.waiting and len(spawned) == 2
     threading.Timer(0.4, first.wait).start()  # the first's children end 0.4 s from now

@@ -320,7 +320,9 @@ def find_events(
                 dropped["voxels"] += int(m.sum())
     if filtered is not None:
         filtered.update(dropped)
-    groups.sort(key=lambda g: (int(g[1][:, TR_TICK].min()), g[0]))
+    # by start, kind, then place (the least voxel key along each axis): not by the order voxels
+    # reached the tick buffer, which depends on how a frame's updates were batched
+    groups.sort(key=lambda g: (int(g[1][:, TR_TICK].min()), g[0], tuple(int(x) for x in g[2].min(axis=0))))
     for eid, (kind, rows, keys, changed) in enumerate(groups, start=1):
         events.append(_event(eid, kind, rows, keys, changed, resolution, clock))
         members[eid] = (rows[:, TR_BLOCK] * 512 + rows[:, TR_OFF]).astype(np.int64)

@@ -44,6 +44,7 @@ from .projective import (
     PROJECTIVE_CHUNK_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
+    ends_box,
     projective_blocks,
     projective_fill,
     quiet_keys_in_box,
@@ -592,6 +593,7 @@ def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
 _QUIET_VERSIONS = itertools.count()
 QUIET_LIST_WHOLE = 2  # the workers get every quiet block while the map has at most this many times a frame's box
 _NO_KEYS = np.empty(0, dtype=np.int64)
+_NO_MASKS = np.empty((0, 8), dtype=np.uint64)
 
 
 class _QuietBlocks:
@@ -654,10 +656,13 @@ class _QuietBlocks:
 _NO_QUARTERS = np.empty(0, dtype=_QuietBlocks.FLAG)
 
 
-class DepthProjection(NamedTuple):
-    """The misses the projection makes for one depth image (``LayeredMap.depth_projection``,
-    ``core.projective.projective_blocks``): per block its packed coordinates and its voxels' bits;
-    the blocks it skipped quiet quarters of, and what ``projective_fill`` needs to make theirs."""
+class FrameMasks(NamedTuple):
+    """One frame's voxel updates as block masks, for ``LayeredMap.apply_voxels``: per block its
+    packed coordinates and its voxels' bits (``grid.voxel_offset`` order), the misses, and the
+    hits in masks of their own. A depth frame's projection (``LayeredMap.depth_projection``,
+    ``core.projective.projective_blocks``) also gives its box, the blocks whose quiet quarters
+    it skipped, and what ``projective_fill`` needs to make theirs; whole rays (``ray_voxels``:
+    scans, clouds, exact depth) give keys, masks and hits only."""
 
     keys: np.ndarray  # (n,) int64, ascending
     masks: np.ndarray  # (n, 8) uint64
@@ -830,7 +835,7 @@ class LayeredMap:
         return ends, kind
 
     def depth_projection(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
-                         max_range: float, ends: np.ndarray) -> DepthProjection:
+                         max_range: float, ends: np.ndarray) -> FrameMasks:
         """What ``apply_voxels`` needs to make the projective misses of one depth image (the
         frame's ``depth_rays`` gave ``ends``). Reads no map state (a worker thread's part)."""
         depth, unit_mm = _depth_view(depth)
@@ -855,9 +860,9 @@ class LayeredMap:
             n += m
         keys, masks, skipped = keys[:n], masks[:n], skipped[:ns]
         if not len(skipped):
-            return DepthProjection(keys, masks, box)
-        return DepthProjection(keys, masks, box, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
-                                                           float(cy), Tinv, box, self.resolution, band))  # fmt: skip
+            return FrameMasks(keys, masks, box)
+        return FrameMasks(keys, masks, box, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
+                                                      float(cy), Tinv, box, self.resolution, band))  # fmt: skip
 
     def projective_tail(self) -> float:
         """How far before its end a depth ray is walked in projective mode (m): the band and an
@@ -905,7 +910,7 @@ class LayeredMap:
         ``LISTED_VOXELS_MAX_BLOCKS`` blocks, or when a step leaves the box). Reads no map state
         (a worker thread's part)."""
         if self.cfg.sensor.depth_integration != "projective":
-            return (*self.frame_voxels(T[:3, 3], ends, kind), None)
+            return self.ray_voxels(T[:3, 3], ends, kind)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
         keys, masks, hk, hm, ok = tail_masks(np.ascontiguousarray(T[:3, 3], dtype=np.float64), ends, kind,
                                              1.0 / self.resolution, self.resolution, self.projective_tail(),
@@ -917,9 +922,29 @@ class LayeredMap:
         return hits, misses, projection
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
-        """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(frame_voxels(...))``."""
-        hits, misses = self.frame_voxels(origin, ends, kind)
-        return self.apply_voxels(hits, misses, int((kind > 0).sum()))
+        """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(ray_voxels(...))``."""
+        hits, misses, masks = self.ray_voxels(origin, ends, kind)
+        return self.apply_voxels(hits, misses, int((kind > 0).sum()), masks)
+
+    def ray_voxels(self, origin, ends: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray, FrameMasks | None]:
+        """The voxels these rays update, walked whole, for ``apply_voxels``: (hits, misses,
+        masks). As block masks (``core.projective.tail_masks`` over the rays' box, no tail: each
+        voxel's bit set however many rays pass it; the map thread then looks each block up once,
+        not each voxel, and drops quiet quarters a word at a time), with no lists; as lists
+        (``frame_voxels``) and no masks in a box of more than ``LISTED_VOXELS_MAX_BLOCKS`` blocks
+        or when a step leaves it. Either way the map gets the same updates: each voxel once, a
+        hit first. Reads no map state (a worker thread's part)."""
+        origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
+        inv_res = 1.0 / self.resolution
+        box = ends_box(origin, ends, inv_res)
+        # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
+        lo, hi = box[:3] * self.resolution, (box[3:] + 1) * self.resolution
+        check_extent(origin, float(np.max(np.maximum(origin - lo, hi - origin))), self.resolution)
+        keys, masks, hk, hm, ok = tail_masks(origin, ends, kind, inv_res, self.resolution, 0.0, _NO_KEYS, _NO_MASKS,
+                                             box, LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
+        if ok:
+            return _NO_KEYS, _NO_KEYS, FrameMasks(keys, masks, hits=(hk, hm))
+        return (*self.frame_voxels(origin, ends, kind), None)
 
     def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray, tail: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The voxels these rays update, each once, in update order: (hits, misses), packed keys
@@ -965,9 +990,10 @@ class LayeredMap:
                 scratch.sparse = sparse_grown(*scratch.sparse, meta[SEEN_SPARSE_GEN], 4 * len(scratch.sparse[0]))
 
     def apply_voxels(self, hits: np.ndarray, misses: np.ndarray, rays: int = 0,
-                     projection: DepthProjection | None = None) -> FrameResult:
-        """Give one frame's voxels (from ``frame_voxels``) the hit and miss updates: the frame's
-        stateful half, in the thread that owns the map.
+                     masks: FrameMasks | None = None) -> FrameResult:
+        """Give one frame's voxels the hit and miss updates: the frame's stateful half, in the
+        thread that owns the map. The voxels come listed (``hits``, ``misses``: ``frame_voxels``)
+        or as block masks (``masks``: ``ray_voxels``, ``depth_voxels``), or both.
 
         Quiet quarters and blocks (``quiet_blocks``, default on): a 4 x 4 x 4 quarter of an O
         block all of whose 64 voxels are clamped free (log-odds at ``clamp_min_logodds``) and
@@ -987,21 +1013,21 @@ class LayeredMap:
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         q.ch_meta[0] = 0
-        if projection is not None and projection.hits is not None:  # the frame's hits as block masks
-            self._apply_masks(q, *projection.hits, counters, hit=True)
+        if masks is not None and masks.hits is not None:  # the frame's hits as block masks
+            self._apply_masks(q, *masks.hits, counters, hit=True)
         if len(hits) or len(misses):  # (none: nothing to do, and a first run's projective16 warm-up
-            self._apply(q, hits, misses, 0, counters)  # group leaves this kernel to the rays group)
-        if projection is not None and projection.skipped is not None:  # blocks a worker took as quiet
-            projection = self._fill_stale(q, projection)
-        if projection is not None:  # the misses the projection makes (core.projective), block by block
-            self._apply_masks(q, projection.keys, projection.masks, counters)
+            self._apply(q, hits, misses, 0, counters)  # group leaves this kernel to the lists group)
+        if masks is not None and masks.skipped is not None:  # blocks a worker took as quiet
+            masks = self._fill_stale(q, masks)
+        if masks is not None:  # the misses (the projection's and the rays'), block by block
+            self._apply_masks(q, masks.keys, masks.masks, counters)
         if self.quiet_blocks and q.ch_meta[0]:
             q.update(self, int(q.ch_meta[0]))
-        if self.quiet_blocks and projection is not None and projection.box is not None:
-            self._publish_quiet(q, projection.box)
+        if self.quiet_blocks and masks is not None and masks.box is not None:  # a depth frame's projection
+            self._publish_quiet(q, masks.box)
         return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
 
-    def _fill_stale(self, q: _QuietBlocks, projection: DepthProjection) -> DepthProjection:
+    def _fill_stale(self, q: _QuietBlocks, projection: FrameMasks) -> FrameMasks:
         """The projection with the masks of the blocks its worker skipped quarters of as quiet
         where one of those is quiet no more (the worker saw an older list; ``_publish_quiet``),
         each block made whole again, in key order: what it would have been with the map as the
@@ -1022,7 +1048,7 @@ class LayeredMap:
         # a block skipped as quiet may hold tail misses already (depth_voxels): one entry, the
         # union of its bits (numpy: a rare path, the threads' only, and no kernel to compile)
         first = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
-        return DepthProjection(keys[first], np.bitwise_or.reduceat(masks, first, axis=0), projection.box)
+        return FrameMasks(keys[first], np.bitwise_or.reduceat(masks, first, axis=0), projection.box)
 
     def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
         """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..core.layers import DepthProjection, LayeredMap
+from ..core.layers import FrameMasks, LayeredMap
 from ..core.sensors import depth_to_points, scan_to_points, transform_points
 from ..io.decode import RawDepthFrame
 from ..io.frames import CloudFrame, DepthFrame, ScanFrame
@@ -37,7 +37,7 @@ class CastFrame:
     cast_s: float
     filtered_pixels: int  # flying pixels dropped, or -1 when the filter did not run
     cpu_s: float  # CPU time of the thread that cast it, for this frame
-    projection: DepthProjection | None = None  # a depth frame in projective mode (apply_voxels makes its misses)
+    masks: FrameMasks | None = None  # its voxels as block masks (then hits and misses are empty)
 
 
 class FrameCaster:
@@ -66,12 +66,12 @@ class FrameCaster:
         if isinstance(frame, (DepthFrame, RawDepthFrame)):  # by map.sensor.depth_integration
             k = frame.intrinsics
             depth = frame.raw if isinstance(frame, RawDepthFrame) else frame.depth_m
-            hits, misses, projection = self.lmap.depth_voxels(depth, k.fx, k.fy, k.cx, k.cy, T,
-                                                              self.sensor.depth_max_range, ends, kind)  # fmt: skip
+            hits, misses, masks = self.lmap.depth_voxels(depth, k.fx, k.fy, k.cx, k.cy, T,
+                                                         self.sensor.depth_max_range, ends, kind)  # fmt: skip
         else:
-            (hits, misses), projection = self.lmap.frame_voxels(T[:3, 3], ends, kind), None
+            hits, misses, masks = self.lmap.ray_voxels(T[:3, 3], ends, kind)
         return CastFrame(hits, misses, int((kind > 0).sum()), t1 - t0, time.perf_counter() - t1, dropped,
-                         time.thread_time() - c0, projection)  # fmt: skip
+                         time.thread_time() - c0, masks)  # fmt: skip
 
     def depth_raw_rays(self, frame: RawDepthFrame, T, robot):
         k, sc = frame.intrinsics, self.sensor

@@ -575,7 +575,7 @@ class Replay:
         if wait_s is not None:  # cast in a worker thread
             self._workers_cpu_s += cast.cpu_s
         t0 = time.perf_counter()
-        r = run.lmap.apply_voxels(cast.hits, cast.misses, cast.n_rays, cast.projection)
+        r = run.lmap.apply_voxels(cast.hits, cast.misses, cast.n_rays, cast.masks)
         integrate_s = time.perf_counter() - t0
         timer.add("integrate", integrate_s)
         if cast.filtered_pixels >= 0:

@@ -2,8 +2,10 @@
 minute of CPU in one process), then loads them from its disk cache (well under a second).
 
 Compiling is split into groups that share almost no kernel: ``rays`` (the rays of points and
-scans, the voxels they pass, their updates of O), ``maps`` (the tick rules, the projection, the
-snapshots' tree walk, the events' grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
+scans, the voxels they pass as block masks, the rays' tails of depth frames too, their updates
+of O), ``lists`` (the voxels rays pass listed, and their updates: frames whose box is too big for
+block masks), ``maps`` (the tick rules, the projection, the snapshots' tree walk, the events'
+grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
 ``planner`` (``--plan-goal``) and two per depth image encoding, the depth kernel's and the
 projective integration's (``depth16``, ``projective16``: 16UC1/mono16; ``depth32``,
 ``projective32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
@@ -41,7 +43,7 @@ from ..core.config import MapConfig
 from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import quiet_keys_in_box, tail_masks
+from ..core.projective import quiet_keys_in_box
 from ..core.sensors import transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -57,14 +59,25 @@ def _pose() -> np.ndarray:
 
 def warm_rays(cfg: MapConfig) -> None:
     """The frame path: a scan's points to the fixed frame, rays with and without a footprint,
-    the voxels they pass and their updates of O, and O's block pool grown (its hash table
-    rebuilt)."""
+    the voxels they pass as block masks (``LayeredMap.ray_voxels``; the rays' tails of a depth
+    frame too) and their updates of O, and O's block pool grown (its hash table rebuilt)."""
     m = LayeredMap(cfg)
     T = _pose()
     scan = transform_points(T, np.array([[1.0, 0.1, -0.5], [1.0, -0.1, -0.98]]))  # to the fixed frame
     m.integrate(T[:3, 3], scan, [True, False], max_range=4.0, robot_pose=T)
     m.integrate([0.0, 0.0, 1.0], [[1.0, 0.1, 0.5]], None, max_range=4.0, robot_pose=None, dedupe=False)
     m.O.grow()
+
+
+def warm_lists(cfg: MapConfig) -> None:
+    """The voxels rays pass, listed, and their updates of O: a frame whose box holds too many
+    blocks for block masks (``LayeredMap.ray_voxels``, ``depth_voxels``; a long-range 3D lidar's
+    cloud), a group of its own, compiled beside the others (about 7 s)."""
+    m = LayeredMap(cfg)
+    origin = np.array([0.0, 0.0, 1.0])
+    ends = np.array([[1.0, 0.1, 0.5], [-1.0, 0.0, 1.0]])
+    kind = np.array([raycast.RAY_HIT, raycast.RAY_CLEAR], dtype=np.int8)
+    m.apply_voxels(*m.frame_voxels(origin, ends, kind), 1)
 
 
 def warm_maps(cfg: MapConfig) -> None:
@@ -81,13 +94,6 @@ def warm_maps(cfg: MapConfig) -> None:
     o, d, q = m.O, m.D, _QuietBlocks
     raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), np.zeros(o.max_blocks, dtype=q.FLAG),
                              o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
-    # the rays' tails walked into the projection's masks (LayeredMap.depth_voxels): here, not in
-    # the projective16 group, the first run's longest (it takes no pixels)
-    keys = pack_blocks(np.zeros((1, 3), dtype=np.int64))
-    ends = np.array([[0.3, 0.2, 0.1]]) * cfg.resolution * 8
-    tail_masks(np.full(3, 0.01 * cfg.resolution), ends, np.full(1, raycast.RAY_HIT, dtype=np.int8), 1.0 / cfg.resolution,
-               float(cfg.resolution), 0.5 * cfg.resolution, keys, np.zeros((1, 8), dtype=np.uint64),
-               np.array([0, 0, 0, 7, 7, 7]), np.int64(1))  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
@@ -137,7 +143,7 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "p
     quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().qquiet)
 
 
-GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
+GROUPS = {"rays": warm_rays, "lists": warm_lists, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
           "depth16": lambda c: warm_depth(c, np.uint16, parts=("rays",)),
           "projective16": lambda c: warm_depth(c, np.uint16, parts=("projection",)),
           "depth32": lambda c: warm_depth(c, np.float32, parts=("rays",)),
@@ -145,11 +151,11 @@ GROUPS = {"rays": warm_rays, "maps": warm_maps, "fused_scan": warm_fused_scan, "
 
 
 def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits: str = "16") -> list[str]:
-    """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays`` and
-    ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
+    """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays``,
+    ``lists`` and ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
     ``raw_depth`` (raw depth images) ``depth16`` (``bits`` "32": ``depth32``), and with
     ``projective`` (``map.sensor.depth_integration``) ``projective16`` (``projective32``) too."""
-    groups = ["rays", "maps"]
+    groups = ["rays", "lists", "maps"]
     if replay.mcap_out:
         groups.append("fused_scan")
     if replay.plan_goal:
@@ -261,10 +267,10 @@ def _removed_cache_file(path: Path, index: str | None, exc: BaseException) -> Ke
 
 
 # CPU seconds each group took to compile alone, its child's ~0.9 s of start-up left out (a 2-core
-# AMD EPYC VM, 2026-12-03; the 32-bit depth groups taken as the 16-bit ones): how the children
-# share the groups (``children_of``)
-COMPILE_S = {"rays": 7.7, "maps": 6.4, "fused_scan": 0.7, "planner": 2.6, "depth16": 3.4, "projective16": 11.4,
-             "depth32": 3.4, "projective32": 11.4}  # fmt: skip
+# AMD EPYC VM, 2026-12-03, session 21; the 32-bit depth groups taken as the 16-bit ones): how the
+# children share the groups (``children_of``)
+COMPILE_S = {"rays": 6.5, "lists": 8.7, "maps": 7.8, "fused_scan": 1.1, "planner": 2.6, "depth16": 2.6,
+             "projective16": 13.8, "depth32": 2.6, "projective32": 13.8}  # fmt: skip
 
 
 def children_of(groups, cores: int) -> list[list[str]]:
