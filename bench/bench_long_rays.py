@@ -21,6 +21,10 @@ default settings), each simulated once with ``ltmap simulate`` and cached under
 - ``lab720``: a lab with tables, a bench and a shelf, driven around with stops, a 1280x720 camera
   pitched down, a person and a chair taken away (not in the default set; held out when the
   projection's rim was chosen in session 17).
+- ``lidar``: no camera: a laser-only robot with a long-range scanner (1080 beams over 270 deg at
+  40 Hz, 25 m) driven down a 30 x 16 m warehouse of shelf rows, a pallet taken away, a person
+  walking across: scans alone, whole rays (not in the default set; ``--no-stats``: it has no
+  depth frames for the cost model).
 
 Per scene and configuration a fresh process replays the log (``ltmap_cli.pipeline.replay.Replay``,
 no plots) and prints: log seconds per wall second (``x real``), the process's CPU seconds for the
@@ -236,6 +240,44 @@ def house_yaml() -> str:
     return "\n".join(out) + "\n"
 
 
+def lidar_yaml() -> str:
+    """No camera: a laser-only robot, as many mobile robots log, with a long-range scanner (1080
+    beams over 270 deg at 40 Hz, 25 m: a SICK or Hokuyo class lidar) driven down a 30 x 16 m
+    warehouse of shelf rows, a pallet taken away at 12 s, a person walking across. The voxels
+    whole rays pass (no projection, no depth kernel): what the map thread and the workers cost
+    for scans alone."""
+    return "\n".join([
+        "# bench/bench_long_rays.py: a warehouse driven through with a long-range lidar. Written by the bench.",
+        "name: bench-long-lidar",
+        "walls:",
+        "  - points: [[0, 0], [30, 0], [30, 16], [0, 16], [0, 0]]",
+        "    thickness: 0.2",
+        "wall_height: 6.0",
+        "ceiling: 6.0",
+        f"duration: {DURATION:g}",
+        "seed: 23",
+        "robot:",
+        "  radius: 0.3",
+        "  odometry_drift: [0.002, 0.001, 0.05]",
+        "  path:",
+        "    waypoints:",
+        "      - {t: 0, x: 2.0, y: 8.0, yaw: 0}",
+        "      - {t: 12, x: 14.0, y: 8.0, yaw: 0}",
+        "      - {t: 20, x: 20.0, y: 3.0, yaw: -60}",
+        "      - {t: 30, x: 27.0, y: 8.0, yaw: 60}",
+        "sensors:",
+        "  laser: {beams: 1080, fov: 270, range_max: 25, rate: 40, noise: 0.01, mount: {xyz: [0.2, 0, 0.3]}}",
+        "objects:",
+        *[f"  - {{id: shelf{i}, kind: box, pose: {{x: {5 + 5 * i}, y: 12.5}}, size: [3.5, 1.0, 2.5]}}" for i in range(5)],
+        *[f"  - {{id: rack{i}, kind: box, pose: {{x: {5 + 5 * i}, y: 3.5}}, size: [3.5, 1.0, 2.5]}}" for i in range(5)],
+        "  - {id: pallet, kind: box, pose: {x: 10.0, y: 6.5, yaw: 15}, size: [1.2, 1.0, 0.9], present: [[0, 12]]}",
+        "  - {id: post, kind: cylinder, pose: {x: 17.5, y: 8.0}, radius: 0.15, height: 6.0}",
+        "people:",
+        "  - {id: bob, path: [{t: 6, x: 16.0, y: 15.0}, {t: 16, x: 16.0, y: 1.0}]}",
+        "",
+    ])
+
+
 SCENES = {
     "house": house_yaml,
     "room": room_yaml,
@@ -243,6 +285,7 @@ SCENES = {
     "office": office_yaml,
     "room720": room720_yaml,
     "lab720": lab720_yaml,
+    "lidar": lidar_yaml,
 }
 
 

@@ -170,13 +170,18 @@ def test_quiet_blocks_take_no_projective_miss():
     in_quiet_q = (q.qquiet[: m.O.n_blocks, None].astype(np.int64) >> quarter[None, :]) & 1 == 1
     partial = ~quiet & in_quiet_q.any(axis=1)
     assert partial.sum() > 5 and in_quiet_q[partial].sum() > 1000
+    lo = m.O.channel("logodds").copy()
     _integrate(m, _wall())
     assert (m.O.channel("stamp")[quiet] == stamp[quiet]).all()
     assert (m.O.channel("stamp")[in_quiet_q] == stamp[in_quiet_q]).all()
     assert (m.O.channel("stamp")[~quiet] != stamp[~quiet]).any()
-    # the other voxels of those blocks take misses: the projection's free space before the wall
-    rest = ~in_quiet_q & partial[:, None] & (m.O.channel("logodds") < 0)
-    assert (m.O.channel("stamp")[rest] != stamp[rest]).sum() > 100
+    # the other voxels of those blocks: the clamped-free ones (no ST or LT: nothing seen there)
+    # are still, and take no miss either; the wall's voxels take their hits
+    lo_min = np.float32(m.cfg.sensor.clamp_min_logodds)
+    still = ~in_quiet_q & partial[:, None] & (lo == lo_min)
+    assert still.sum() > 1000 and (m.O.channel("stamp")[still] == stamp[still]).all()
+    wall = partial[:, None] & (lo > 0)
+    assert wall.sum() > 100 and (m.O.channel("stamp")[wall] != stamp[wall]).all()
 
 
 def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):

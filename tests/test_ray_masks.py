@@ -93,28 +93,62 @@ def test_ray_voxels_are_the_listed_voxels(what):
         assert _mask_voxels(masks.keys, masks.masks) - hit_set == set(_unpack_voxels(misses))
 
 
+def _scanned(monkeypatch, how: str, quiet: bool = True):
+    """A robot scanning the room for 60 frames (ticks every 2) while a pillar stands there from
+    frame 10 to 40: (map, voxels listed, misses applied)."""
+    monkeypatch.setattr(layers_mod, "LISTED_VOXELS_MAX_BLOCKS", 1 << 18 if how == "masks" else 0)
+    cfg = MapConfig()
+    cfg.layers.st_rise_s, cfg.layers.lt_fall_s = 1.0, 1.0  # 5 ticks: the pillar enters LT and leaves it
+    m = LayeredMap(cfg)
+    m.quiet_blocks = quiet
+    rng = np.random.default_rng(3)
+    listed = applied = 0
+    for f in range(60):
+        pose = (0.1 * np.sin(f / 7.0), 0.05 * f / 60.0, 0.3 * np.sin(f / 11.0))
+        origin, ends, kind = _scan_rays(m, pose, _ranges(*pose, box=10 <= f < 40, rng=rng))
+        hits, misses, masks = m.ray_voxels(origin, ends, kind)
+        listed += len(hits) + len(misses)
+        applied += m.apply_voxels(hits, misses, int((kind > 0).sum()), masks).misses
+        if f % 2 == 1:
+            m.end_tick()
+    return m, listed, applied
+
+
+def _same_values(a: LayeredMap, b: LayeredMap, channels=None) -> None:
+    """O's and D's channels the same voxel by voxel, blocks matched by their coordinates."""
+    for layer in ("O", "D"):
+        ga, gb = getattr(a, layer), getattr(b, layer)
+        ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}
+        ib = {tuple(c): i for i, c in enumerate(gb.block_coords[: gb.n_blocks])}
+        assert ia.keys() == ib.keys() and len(ia) > 0
+        for ch in ga.data:
+            if channels is not None and ch not in channels:
+                continue
+            for c, i in ia.items():
+                assert np.array_equal(ga.data[ch][i], gb.data[ch][ib[c]]), (layer, ch)
+
+
+def test_still_voxels_take_no_miss_and_leave_the_map_of_every_update(monkeypatch):
+    """A 2D scan fills one voxel layer of a quarter's four, so its quarters are never quiet; a
+    miss on a still voxel (clamped free, no ST or LT) is skipped a voxel at a time instead, in
+    both kernels: O's log-odds, D's values and the transitions are those of updating every
+    voxel (``quiet_blocks`` off), where the pillar stood too (missed after it left: its ST and
+    LT fall, it leaves LT), with most misses skipped."""
+    every, _, n_every = _scanned(monkeypatch, "masks", quiet=False)
+    for how in ("masks", "lists"):
+        m, _, n = _scanned(monkeypatch, how)
+        assert int(m._quiet.quiet[: m.O.n_blocks].sum()) == 0  # no quiet block: the lever is the still voxels
+        assert n < 0.5 * n_every
+        _same_values(m, every, channels={"logodds", "st", "lt", "last_obs", "last_seen", "obst_since", "free_since"})
+        key = lambda t: sorted(map(tuple, np.asarray(t)[:, [0, 3, 4]].tolist()))  # kind, tick, streak start
+        assert key(m.events.transitions) == key(every.events.transitions)
+
+
 def test_scans_as_masks_leave_the_map_of_the_lists(monkeypatch):
     """A robot scanning the room while a pillar comes and goes, masks against lists (a frame box
     over ``LISTED_VOXELS_MAX_BLOCKS``, 0 here, keeps the lists): O's log-odds and stamps and D's
     values by block coordinates, the pillar's transitions into LT and out of it, the same; nothing listed with masks."""
-    out = {}
-    for how in ("masks", "lists"):
-        monkeypatch.setattr(layers_mod, "LISTED_VOXELS_MAX_BLOCKS", 1 << 18 if how == "masks" else 0)
-        cfg = MapConfig()
-        cfg.layers.st_rise_s, cfg.layers.lt_fall_s = 1.0, 1.0  # 5 ticks: the pillar enters LT and leaves it
-        m = LayeredMap(cfg)
-        rng = np.random.default_rng(3)
-        listed = 0
-        for f in range(60):
-            pose = (0.1 * np.sin(f / 7.0), 0.05 * f / 60.0, 0.3 * np.sin(f / 11.0))
-            origin, ends, kind = _scan_rays(m, pose, _ranges(*pose, box=10 <= f < 40, rng=rng))
-            hits, misses, masks = m.ray_voxels(origin, ends, kind)
-            listed += len(hits) + len(misses)
-            m.apply_voxels(hits, misses, int((kind > 0).sum()), masks)
-            if f % 2 == 1:
-                m.end_tick()
-        out[how] = (m, listed)
-    (a, na), (b, nb) = out["masks"], out["lists"]
+    (a, na, _), (b, nb, _) = _scanned(monkeypatch, "masks"), _scanned(monkeypatch, "lists")
     assert na == 0 and nb > 10_000
     for layer in ("O", "D"):
         ga, gb = getattr(a, layer), getattr(b, layer)

@@ -1091,6 +1091,7 @@ class LayeredMap:
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
                 phase, start, counters, q.nfree, q.qquiet, use_quiet, q.changed, q.ch_meta,
+                self.D.table_keys, self.D.table_vals, self.D.data["st"], self.D.data["lt"],
             )  # fmt: skip
             if status == STATUS_DONE:
                 break
@@ -1110,6 +1111,7 @@ class LayeredMap:
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds, counters,
                 q.nfree, q.qquiet, self.quiet_blocks, q.changed, q.ch_meta,
+                self.D.table_keys, self.D.table_vals, self.D.data["st"], self.D.data["lt"],
             )  # fmt: skip
             if status == STATUS_DONE:
                 break

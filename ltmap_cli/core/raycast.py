@@ -478,7 +478,7 @@ def apply_mask_updates(
     table_keys, table_vals, block_coords, meta, logodds, stamp, hit_mark,
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max, counters,
-    nfree, qquiet, use_quiet, changed, ch_meta,
+    nfree, qquiet, use_quiet, changed, ch_meta, d_keys, d_vals, d_st, d_lt,
 ):  # fmt: skip
     """The misses (``hit`` False) or the hits (True) of blocks given as bit masks (``bkeys``
     packed block keys, ``masks`` (B, 8) uint64: bit ``off`` of a block's 512, in key order,
@@ -489,7 +489,9 @@ def apply_mask_updates(
     its 512 voxels in the tick buffer and eight entries in ``changed`` is made sure of first
     (misses only raise a quarter's count of clamped-free voxels and hits only lower it, so each
     of the eight crosses 64 at most once a call). The misses of quiet quarters are dropped a word
-    at a time (``QUARTER_KEEP``). The per-voxel update is written out here as in
+    at a time (``QUARTER_KEEP``), and so is the miss of a still voxel elsewhere (``use_quiet``:
+    clamped free, no ST or LT in D's ``d_st``, ``d_lt``; as ``apply_voxels_kernel``). The
+    per-voxel update is written out here as in
     ``apply_voxels_kernel``: numba's call to a shared helper, even inline="always", took 3x the
     time of the update itself."""
     lo = np.float32(hit_lo) if hit else np.float32(miss_lo)
@@ -516,6 +518,8 @@ def apply_mask_updates(
         qq = np.int64(qquiet[b]) if use_quiet and not hit else np.int64(0)
         if qq == QUIET_ALL:
             continue
+        still = use_quiet and not hit
+        db = find_block(d_keys, d_vals, bx, by, bz) if still else np.int64(-1)
         for wd in range(8):
             word = masks[t, wd]
             if qq != 0:
@@ -527,11 +531,13 @@ def apply_mask_updates(
                 st = stamp[b, off]
                 if st == frame_id:
                     continue
+                old = logodds[b, off]
+                if still and old == lo_min32 and (db < 0 or (d_st[db, off] == 0.0 and d_lt[db, off] == 0.0)):
+                    continue
                 if st < tick_first:
                     tb_block[n_tb] = b
                     tb_off[n_tb] = off
                     n_tb += 1
-                old = logodds[b, off]
                 v = old + lo
                 if hit:
                     v = lo_max32 if v > lo_max32 else v
@@ -556,7 +562,7 @@ def apply_voxels_kernel(
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
     phase, start, counters,
-    nfree, qquiet, use_quiet, changed, ch_meta,
+    nfree, qquiet, use_quiet, changed, ch_meta, d_keys, d_vals, d_st, d_lt,
 ):  # fmt: skip
     """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
@@ -571,8 +577,11 @@ def apply_voxels_kernel(
     frames: the quarter's 64 voxels clamped free, none with ST or LT) is read as it was when the
     frame began. A miss in a quiet quarter is no update: its log-odds would stay at ``lo_min``,
     and the tick rules have nothing to do for a clamped-free voxel without ST or LT, so it is
-    neither stamped nor put in the tick buffer. Blocks of a quarter whose count reached or left
-    64 are appended to ``changed`` (``ch_meta[0]`` of them) for ``quiet_update``."""
+    neither stamped nor put in the tick buffer. So is a miss on a still voxel in any quarter: one
+    clamped free with no ST or LT (D's ``d_st``, ``d_lt``; no D block: none), the same rule a
+    voxel at a time (a 2D laser scan fills one voxel layer of a quarter's four: its quarters are
+    never quiet). Blocks of a quarter whose count reached or left 64 are appended to ``changed``
+    (``ch_meta[0]`` of them) for ``quiet_update``."""
     hit_lo32 = np.float32(hit_lo)
     miss_lo32 = np.float32(miss_lo)
     lo_min32 = np.float32(lo_min)
@@ -586,6 +595,7 @@ def apply_voxels_kernel(
     last_bz = np.int64(0)
     last_b = np.int64(-1)
     last_qq = np.int64(0)
+    last_db = np.int64(-1)
     while phase < 2:
         keys = hits if phase == 0 else misses
         lo = hit_lo32 if phase == 0 else miss_lo32
@@ -603,6 +613,7 @@ def apply_voxels_kernel(
                     counters[phase] += n_done
                     return STATUS_NEED_BLOCKS, phase, r
                 last_qq = np.int64(qquiet[last_b]) if use_quiet and phase == 1 else np.int64(0)
+                last_db = find_block(d_keys, d_vals, bx, by, bz) if use_quiet and phase == 1 else np.int64(-1)
             if last_qq == QUIET_ALL:
                 continue
             off = voxel_offset(i, j, k)
@@ -611,6 +622,10 @@ def apply_voxels_kernel(
             st = stamp[last_b, off]
             if st == frame_id:
                 continue
+            old = logodds[last_b, off]
+            if (use_quiet and phase == 1 and old == lo_min32
+                    and (last_db < 0 or (d_st[last_db, off] == 0.0 and d_lt[last_db, off] == 0.0))):  # fmt: skip
+                continue  # a still voxel
             if use_quiet and n_ch >= ch_cap:  # before anything of voxel r is written: it is done again
                 tb_meta[0] = n_tb
                 ch_meta[0] = n_ch
@@ -625,7 +640,6 @@ def apply_voxels_kernel(
                 tb_block[n_tb] = last_b
                 tb_off[n_tb] = off
                 n_tb += 1
-            old = logodds[last_b, off]
             v = old + lo
             if phase == 0:
                 v = lo_max32 if v > lo_max32 else v
