@@ -420,9 +420,7 @@ def run_child(args: list[str], env=None) -> dict:
 
 def run_config(name: str, log: Path, out: Path, before: str) -> dict:
     out.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ)
-    if name == "before":
-        env["PYTHONPATH"] = str(bench_replay.code_at(before)) + os.pathsep + env.get("PYTHONPATH", "")
+    env = bench_replay.code_env(before if name == "before" else None)
     res = run_child(["--child", name, str(log), str(out)], env)
     res["out"] = str(out)
     return res
@@ -434,7 +432,7 @@ def cli_run(log: Path, out: Path) -> dict:
     the largest of every child waited for so far, so it gave the earlier replays' peak)."""
     t0 = time.perf_counter()
     proc = subprocess.Popen(bench_replay.ltmap_cmd("replay", str(log), "-o", str(out), "--no-plots"),
-                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)  # fmt: skip
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=bench_replay.code_env())  # fmt: skip
     err = proc.stderr.read()
     _, status, ru = os.wait4(proc.pid, 0)
     wall = time.perf_counter() - t0
@@ -496,7 +494,7 @@ def main() -> None:
     stats, results, cli = {}, {}, {}
     for s in scenes:
         if not args.no_stats:
-            stats[s] = run_child(["--stats", str(logs[s]), str(work / s / "stats")])
+            stats[s] = run_child(["--stats", str(logs[s]), str(work / s / "stats")], bench_replay.code_env())
             st = stats[s]
             print(f"  {s}: {st['rays']:.0f} cast rays per depth frame, mean length {st['ray_len']:.2f} m "
                   f"(pixels {st['pixel_len']:.2f} m), {st['steps'] / 1e6:.2f} M DDA steps and "

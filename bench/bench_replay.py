@@ -135,7 +135,7 @@ def simulated_log(prefix: str, text: str, what: str, minutes: float | None = Non
     t0 = time.perf_counter()
     about = f"; about {minutes:.0f} min" if minutes is not None else ""
     print(f"simulating {what} into {folder} (once{about}) ...", flush=True)
-    subprocess.run(ltmap_cmd("simulate", str(folder / "scenario.yaml"), "-o", str(log)), check=True,
+    subprocess.run(ltmap_cmd("simulate", str(folder / "scenario.yaml"), "-o", str(log)), check=True, env=code_env(),
                    stdout=subprocess.DEVNULL)  # fmt: skip
     print(f"  done in {time.perf_counter() - t0:.0f} s", flush=True)
     return log
@@ -159,7 +159,7 @@ def ensure_log(duration: float) -> tuple[Path, Path]:
                         minutes=duration * 1.8 / 60)  # fmt: skip
     static = log.parent / "static"
     if not (static / "static.yaml").is_file():
-        subprocess.run(ltmap_cmd("build-static", str(PLAN), "-o", str(static), "--force"), check=True,
+        subprocess.run(ltmap_cmd("build-static", str(PLAN), "-o", str(static), "--force"), check=True, env=code_env(),
                        stdout=subprocess.DEVNULL)  # fmt: skip
     return log, static
 
@@ -224,6 +224,15 @@ def child(name: str, log: Path, static: Path, out: Path) -> None:
     }), flush=True)
 
 
+def code_env(ref: str | None = None) -> dict:
+    """The environment of a child process that runs the code of git ``ref`` (``code_at``), or
+    with None this checkout's: the tree this file is in, not whichever ltmap the venv has
+    installed (a bench run from a second worktree measured the first one's code as "now")."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = str(code_at(ref) if ref else ROOT) + os.pathsep + env.get("PYTHONPATH", "")
+    return env
+
+
 def code_at(ref: str) -> Path:
     """The package as it was at git ref ``ref``, extracted under bench/.cache (once), for "before"."""
     sha = subprocess.run(["git", "rev-parse", ref], cwd=ROOT, check=True, capture_output=True,
@@ -239,9 +248,7 @@ def code_at(ref: str) -> Path:
 def run_config(name: str, log: Path, static: Path, work: Path, before: str | None = None) -> dict:
     out = work / name
     out.mkdir(parents=True, exist_ok=True)
-    env = dict(os.environ)
-    if name.startswith("before"):
-        env["PYTHONPATH"] = str(code_at(before or "HEAD")) + os.pathsep + env.get("PYTHONPATH", "")
+    env = code_env(before or "HEAD") if name.startswith("before") else code_env()
     proc = subprocess.run([sys.executable, __file__, "--child", name, str(log), str(static), str(out)],
                           check=True, capture_output=True, text=True, env=env)
     res = json.loads(proc.stdout.strip().splitlines()[-1])

@@ -106,16 +106,14 @@ def main() -> None:
     ap.add_argument("--rounds", type=int, default=3)
     args = ap.parse_args()
     print(f"bench_stages_ab: {bench_replay.machine()}")
-    before = bench_replay.code_at(args.before)
+    bench_replay.code_at(args.before)  # (extracted once, before the rounds)
     work = Path(tempfile.mkdtemp(prefix="bench_stages_ab_"))
     for scene in args.scenes.split(","):
         log = bench_long_rays.ensure_log(scene)
         spent = {"now": [], "before": []}
         for r in range(-1, args.rounds):  # round -1: each code once, not counted (a code's first run
             for which in ("now", "before") if r % 2 == 0 else ("before", "now"):  # compiles its kernels)
-                env = dict(os.environ)
-                if which == "before":
-                    env["PYTHONPATH"] = str(before) + os.pathsep + env.get("PYTHONPATH", "")
+                env = bench_replay.code_env(args.before if which == "before" else None)
                 out = work / scene / which
                 out.mkdir(parents=True, exist_ok=True)
                 proc = subprocess.run([sys.executable, __file__, "--child", str(log), str(out)], env=env,
