@@ -443,16 +443,28 @@ def cli_run(log: Path, out: Path) -> dict:
 
 
 def same_maps(a_out: str, b_out: str) -> dict:
-    """Which of O's and D's arrays are bit for bit the same (and O log-odds / stamp > 0 alone)."""
+    """Which of O's and D's arrays are bit for bit the same in storage order, and, by block
+    coordinates, whether O's known voxels (stamp > 0) and O's log-odds and D's channels are."""
     import numpy as np
 
     a = np.load(Path(a_out) / "bench_state.npz")
     b = np.load(Path(b_out) / "bench_state.npz")
     diff = [k for k in a.files if k.startswith(("O_", "D_"))
             and (a[k].shape != b[k].shape or a[k].tobytes() != b[k].tobytes())]  # fmt: skip
-    known = a["O_stamp"].shape == b["O_stamp"].shape and np.array_equal(a["O_stamp"] > 0, b["O_stamp"] > 0)
+    def by_coords(z, grid: str, ch: str):  # a channel's rows in the order of their blocks' coordinates
+        return z[f"{grid}_{ch}"][np.lexsort(z[f"{grid}_block_coords"].T[::-1])]
+
+    def same(grid: str, ch: str, f=lambda x: x) -> bool:
+        x, y = by_coords(a, grid, ch), by_coords(b, grid, ch)
+        return x.shape == y.shape and np.array_equal(f(x), f(y))
+
+    # by block coordinates: the order blocks are made in follows the order voxels are updated in
+    coords = all(same(g, "block_coords") for g in ("O", "D"))
+    known = coords and same("O", "stamp", lambda x: x > 0)
+    values = coords and same("O", "logodds") and all(
+        same("D", k[2:]) for k in a.files if k.startswith("D_") and k != "D_block_coords")  # fmt: skip
     p_same = a["P"].shape == b["P"].shape and np.array_equal(a["P"], b["P"])
-    out = {"differ": diff, "known_same": bool(known), "P_same": bool(p_same)}
+    out = {"differ": diff, "known_same": bool(known), "values_same": bool(values), "P_same": bool(p_same)}
     if "O_occupied" in a.files and "O_occupied" in b.files:
         out["O_iou"] = bench_replay.iou(a["O_occupied"], b["O_occupied"])
         out["LT_iou"] = bench_replay.iou(a["LT_keys"], b["LT_keys"])
@@ -552,7 +564,8 @@ def main() -> None:
                 ious = (f"; IoU occupied O {c['O_iou']:.4f}, LT {c['LT_iou']:.4f}, P {c['P_iou']:.4f}"
                         if "O_iou" in c else "")
                 print(f"{s}: {n} vs {ref['name']}: arrays that differ {c['differ'] or 'none'}; "
-                      f"known voxels same {c['known_same']}; P same {c['P_same']}{ious}")
+                      f"known voxels same {c['known_same']}; O log-odds and D by block coordinates same "
+                      f"{c['values_same']}; P same {c['P_same']}{ious}")
         if "exact" in names and ref["name"] != "exact":  # the issue's bound is against exact rays
             ex = results[(s, "exact")][0]
             for n in names:
