@@ -588,6 +588,21 @@ def _mask_voxels(keys, masks) -> set:
     return out
 
 
+def same_by_coords(a: LayeredMap, b: LayeredMap, channels=None) -> None:
+    """O's and D's channels (``channels``, or all) the same voxel by voxel, blocks matched by
+    their coordinates (the order blocks are made in follows the order voxels are updated in)."""
+    for layer in ("O", "D"):
+        ga, gb = getattr(a, layer), getattr(b, layer)
+        ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}
+        ib = {tuple(c): i for i, c in enumerate(gb.block_coords[: gb.n_blocks])}
+        assert ia.keys() == ib.keys() and len(ia) > 0
+        for ch in ga.data:
+            if channels is not None and ch not in channels:
+                continue
+            for c, i in ia.items():
+                assert np.array_equal(ga.data[ch][i], gb.data[ch][ib[c]]), (layer, ch)
+
+
 def _unpack_voxels(keys) -> list:
     """Packed voxel keys (``grid.pack_block``'s packing) as (i, j, k) tuples."""
     from ltmap_cli.core.grid import unpack_block
@@ -703,14 +718,7 @@ def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):
         out[how] = (m, listed)
     (a, na), (b, nb) = out["masks"], out["list"]
     assert na == 0 and nb > 1000  # the tails' misses and the hits: none listed, then all
-    for layer in ("O", "D"):
-        ga, gb = getattr(a, layer), getattr(b, layer)
-        ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}
-        ib = {tuple(c): i for i, c in enumerate(gb.block_coords[: gb.n_blocks])}
-        assert ia.keys() == ib.keys() and len(ia) > 0
-        for ch in ga.data:
-            for c, i in ia.items():
-                assert np.array_equal(ga.data[ch][i], gb.data[ch][ib[c]]), (layer, ch)
+    same_by_coords(a, b)
     assert a.D.channel("st").max() > 0  # the box's obstacle reached ST
     ta, tb = a.events.transitions, b.events.transitions
     assert len(ta) == len(tb)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_projective import _mask_voxels, _unpack_voxels
+from test_projective import _mask_voxels, _unpack_voxels, same_by_coords
 
 import ltmap_cli.core.layers as layers_mod
 from ltmap_cli.core.config import MapConfig
@@ -74,7 +74,7 @@ def test_ray_voxels_are_the_listed_voxels(what):
             pts = origin + rng.normal(0.0, 1.5, (3000, 3))
             ends, kind = m.rays(origin, pts, None, max_range=3.0, dedupe=True)
         else:
-            from test_projective import CX, CY, F, POSE, _wall
+            from test_projective import CX, CY, POSE, F, _wall
 
             depth = _wall(2500 + int(300 * pose[0]))
             depth[30:70, 50:90] = 1200
@@ -114,18 +114,10 @@ def _scanned(monkeypatch, how: str, quiet: bool = True):
     return m, listed, applied
 
 
-def _same_values(a: LayeredMap, b: LayeredMap, channels=None) -> None:
-    """O's and D's channels the same voxel by voxel, blocks matched by their coordinates."""
-    for layer in ("O", "D"):
-        ga, gb = getattr(a, layer), getattr(b, layer)
-        ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}
-        ib = {tuple(c): i for i, c in enumerate(gb.block_coords[: gb.n_blocks])}
-        assert ia.keys() == ib.keys() and len(ia) > 0
-        for ch in ga.data:
-            if channels is not None and ch not in channels:
-                continue
-            for c, i in ia.items():
-                assert np.array_equal(ga.data[ch][i], gb.data[ch][ib[c]]), (layer, ch)
+def _transitions(m: LayeredMap) -> list:
+    """The transitions as (kind, tick, streak start), sorted: their D block and offset depend on
+    the order blocks were made in."""
+    return sorted(map(tuple, np.asarray(m.events.transitions)[:, [0, 3, 4]].tolist()))
 
 
 def test_still_voxels_take_no_miss_and_leave_the_map_of_every_update(monkeypatch):
@@ -139,9 +131,8 @@ def test_still_voxels_take_no_miss_and_leave_the_map_of_every_update(monkeypatch
         m, _, n = _scanned(monkeypatch, how)
         assert int(m._quiet.quiet[: m.O.n_blocks].sum()) == 0  # no quiet block: the lever is the still voxels
         assert n < 0.5 * n_every
-        _same_values(m, every, channels={"logodds", "st", "lt", "last_obs", "last_seen", "obst_since", "free_since"})
-        key = lambda t: sorted(map(tuple, np.asarray(t)[:, [0, 3, 4]].tolist()))  # kind, tick, streak start
-        assert key(m.events.transitions) == key(every.events.transitions)
+        same_by_coords(m, every, channels={"logodds", "st", "lt", "last_obs", "last_seen", "obst_since", "free_since"})
+        assert _transitions(m) == _transitions(every)
 
 
 def test_scans_as_masks_leave_the_map_of_the_lists(monkeypatch):
@@ -150,15 +141,7 @@ def test_scans_as_masks_leave_the_map_of_the_lists(monkeypatch):
     values by block coordinates, the pillar's transitions into LT and out of it, the same; nothing listed with masks."""
     (a, na, _), (b, nb, _) = _scanned(monkeypatch, "masks"), _scanned(monkeypatch, "lists")
     assert na == 0 and nb > 10_000
-    for layer in ("O", "D"):
-        ga, gb = getattr(a, layer), getattr(b, layer)
-        ia = {tuple(c): i for i, c in enumerate(ga.block_coords[: ga.n_blocks])}
-        ib = {tuple(c): i for i, c in enumerate(gb.block_coords[: gb.n_blocks])}
-        assert ia.keys() == ib.keys() and len(ia) > 0
-        for ch in ga.data:
-            for c, i in ia.items():
-                assert np.array_equal(ga.data[ch][i], gb.data[ch][ib[c]]), (layer, ch)
+    same_by_coords(a, b)
     assert a.D.channel("st").max() > 0  # the pillar reached ST
-    key = lambda t: sorted(map(tuple, np.asarray(t)[:, [0, 3, 4]].tolist()))  # kind, tick, streak start
-    kinds = {int(k) for k in np.asarray(a.events.transitions)[:, 0]}
-    assert kinds == {TR_APPEAR, TR_DISAPPEAR} and key(a.events.transitions) == key(b.events.transitions)
+    kinds = {t[0] for t in _transitions(a)}
+    assert kinds == {TR_APPEAR, TR_DISAPPEAR} and _transitions(a) == _transitions(b)
