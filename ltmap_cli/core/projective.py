@@ -363,12 +363,17 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
                     ui, vi = np.int64(uf), np.int64(vf)
                     r = np.float64(flat[pix])
                     free = r > 0.0 and r * r > d2
-                    if not free and su < TILE and sv < TILE:  # the rim's pixels lie in at most 2 x 2
-                        t0 = max(np.int64(uf - su), 0) // TILE  # tiles: any range far enough there?
+                    if not free and su < TILE and sv < TILE:  # any range far enough in the tiles
+                        # of the rim's pixels? A span under 2 TILE a side: 2 x 2 tiles of level 0,
+                        # or of level 1 when it crosses 3 of level 0 (the corners alone left out
+                        # the middle ones: a voxel seen past a far patch above it was no miss)
+                        t0 = max(np.int64(uf - su), 0) // TILE
                         t1 = min(np.int64(uf + su), w - 1) // TILE
                         s0 = max(np.int64(vf - sv), 0) // TILE
                         s1 = min(np.int64(vf + sv), h - 1) // TILE
-                        r = max(max(tmax[0, s0, t0], tmax[0, s0, t1]), max(tmax[0, s1, t0], tmax[0, s1, t1]))
+                        lv = np.int64((t1 - t0 > 1) | (s1 - s0 > 1))
+                        t0, t1, s0, s1 = t0 >> lv, t1 >> lv, s0 >> lv, s1 >> lv
+                        r = max(max(tmax[lv, s0, t0], tmax[lv, s0, t1]), max(tmax[lv, s1, t0], tmax[lv, s1, t1]))
                         r = np.float64(r) - band
                         rim = r > 0.0 and r * r > d2
                     elif not free and su < 2 * TILE and sv < 2 * TILE:  # within the 3 x 3 tiles around
