@@ -23,8 +23,8 @@ default settings), each simulated once with ``ltmap simulate`` and cached under
   projection's rim was chosen in session 17).
 - ``lidar``: no camera: a laser-only robot with a long-range scanner (1080 beams over 270 deg at
   40 Hz, 25 m) driven down a 30 x 16 m warehouse of shelf rows, a pallet taken away, a person
-  walking across: scans alone, whole rays (not in the default set; ``--no-stats``: it has no
-  depth frames for the cost model).
+  walking across: scans alone, whole rays (not in the default set; it has no depth frames for
+  the cost model: its statistics are NaN).
 
 Per scene and configuration a fresh process replays the log (``ltmap_cli.pipeline.replay.Replay``,
 no plots) and prints: log seconds per wall second (``x real``), the process's CPU seconds for the
@@ -408,7 +408,7 @@ def stats_child(log: Path, out: Path) -> None:
     run = Replay(cfg, ReplayRequest([log], out / "stats"))
     run.threads = False
     run.run()
-    a = np.array(rows, dtype=np.float64)
+    a = np.array(rows, dtype=np.float64).reshape(-1, 5)  # (none: a scene without depth frames, lidar)
     print(json.dumps({"frames": len(a), "rays": a[:, 0].mean(), "ray_len": a[:, 1].mean(), "pixel_len": a[:, 2].mean(),
                       "steps": a[:, 3].mean(), "voxels": a[:, 4].mean()}), flush=True)  # fmt: skip
 
