@@ -912,39 +912,40 @@ class LayeredMap:
         if self.cfg.sensor.depth_integration != "projective":
             return self.ray_voxels(T[:3, 3], ends, kind)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)
-        keys, masks, hk, hm, ok = tail_masks(np.ascontiguousarray(T[:3, 3], dtype=np.float64), ends, kind,
-                                             1.0 / self.resolution, self.resolution, self.projective_tail(),
-                                             projection.keys, projection.masks, projection.box,
-                                             LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
-        if ok:
-            return _NO_KEYS, _NO_KEYS, projection._replace(keys=keys, masks=masks, hits=(hk, hm))
-        hits, misses = self.frame_voxels(T[:3, 3], ends, kind, self.projective_tail())
-        return hits, misses, projection
+        return self.ray_voxels(T[:3, 3], ends, kind, self.projective_tail(), projection)
 
     def integrate_rays(self, origin, ends: np.ndarray, kind: np.ndarray) -> FrameResult:
         """Fuse rays from ``rays`` or ``depth_rays`` into O: ``apply_voxels(ray_voxels(...))``."""
         hits, misses, masks = self.ray_voxels(origin, ends, kind)
         return self.apply_voxels(hits, misses, int((kind > 0).sum()), masks)
 
-    def ray_voxels(self, origin, ends: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray, FrameMasks | None]:
-        """The voxels these rays update, walked whole, for ``apply_voxels``: (hits, misses,
-        masks). As block masks (``core.projective.tail_masks`` over the rays' box, no tail: each
-        voxel's bit set however many rays pass it; the map thread then looks each block up once,
-        not each voxel, and drops quiet quarters a word at a time), with no lists; as lists
-        (``frame_voxels``) and no masks in a box of more than ``LISTED_VOXELS_MAX_BLOCKS`` blocks
-        or when a step leaves it. Either way the map gets the same updates: each voxel once, a
-        hit first. Reads no map state (a worker thread's part)."""
+    def ray_voxels(self, origin, ends: np.ndarray, kind: np.ndarray, tail: float = 0.0,
+                   projection: FrameMasks | None = None) -> tuple[np.ndarray, np.ndarray, FrameMasks | None]:
+        """The voxels these rays update, for ``apply_voxels``: (hits, misses, masks). Each ray is
+        walked whole, or over its last ``tail`` metres with a depth frame's ``projection``
+        (``depth_voxels``), whose masks the misses join. As block masks
+        (``core.projective.tail_masks`` over the frame's box: each voxel's bit set however many
+        rays pass it; the map thread then looks each block up once, not each voxel, and drops
+        quiet quarters a word at a time), with no lists; as lists (``frame_voxels``) beside the
+        projection's masks in a box of more than ``LISTED_VOXELS_MAX_BLOCKS`` blocks or when a
+        step leaves it. Either way the map gets the same updates: each voxel once, a hit first.
+        Reads no map state (a worker thread's part)."""
         origin = np.ascontiguousarray(origin, dtype=np.float64).reshape(3)
         inv_res = 1.0 / self.resolution
-        box = ends_box(origin, ends, inv_res)
-        # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
-        lo, hi = box[:3] * self.resolution, (box[3:] + 1) * self.resolution
-        check_extent(origin, float(np.max(np.maximum(origin - lo, hi - origin))), self.resolution)
-        keys, masks, hk, hm, ok = tail_masks(origin, ends, kind, inv_res, self.resolution, 0.0, _NO_KEYS, _NO_MASKS,
+        if projection is not None:
+            pkeys, pmasks, box = projection.keys, projection.masks, projection.box
+        else:  # (no box kept in the masks: it would make apply_voxels publish quiet blocks for it)
+            pkeys, pmasks, box = _NO_KEYS, _NO_MASKS, ends_box(origin, ends, inv_res)
+            # (rays() and depth_rays() checked already; rays handed to integrate_rays may not be)
+            lo, hi = box[:3] * self.resolution, (box[3:] + 1) * self.resolution
+            check_extent(origin, float(np.max(np.maximum(origin - lo, hi - origin))), self.resolution)
+        keys, masks, hk, hm, ok = tail_masks(origin, ends, kind, inv_res, self.resolution, float(tail), pkeys, pmasks,
                                              box, LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
         if ok:
-            return _NO_KEYS, _NO_KEYS, FrameMasks(keys, masks, hits=(hk, hm))
-        return (*self.frame_voxels(origin, ends, kind), None)
+            done = FrameMasks(keys, masks) if projection is None else projection._replace(keys=keys, masks=masks)
+            return _NO_KEYS, _NO_KEYS, done._replace(hits=(hk, hm))
+        hits, misses = self.frame_voxels(origin, ends, kind, tail)
+        return hits, misses, projection
 
     def frame_voxels(self, origin, ends: np.ndarray, kind: np.ndarray, tail: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The voxels these rays update, each once, in update order: (hits, misses), packed keys
