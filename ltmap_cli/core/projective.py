@@ -27,7 +27,7 @@ import numpy as np
 from numba import njit
 
 from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
-from .raycast import QUARTER_KEEP, QUIET_ALL, RAY_HIT, RAY_SKIP, ray_start, ray_step
+from .raycast import QUARTER_KEEP, QUIET_ALL, RAY_CHUNK, RAY_HIT, RAY_SKIP, ray_start_buffers, ray_starts, ray_state, ray_step
 
 # a block whose quiet quarters a worker skipped is listed as (its number in the box << SKIP_SHIFT)
 # | those quarters (projective_blocks, stale_skips)
@@ -570,7 +570,7 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     """The rays' tails and hits of a depth frame straight into block masks, with the
     projection's: (keys, masks, hit keys, hit masks, True), keys ascending; the masks hold the
     projection's blocks (``pkeys`` ascending, ``pmasks``) with the misses of every ray's last
-    ``tail`` metres (``core.raycast``'s DDA: ``ray_start``, ``ray_step``) set in them, the hit
+    ``tail`` metres (``core.raycast``'s DDA: ``ray_starts``, ``ray_step``) set in them, the hit
     masks the end voxels of the hit rays. (empty, empty, empty, empty, False) when the frame's
     voxel box ``box`` holds more than ``max_blocks`` blocks (``LISTED_VOXELS_MAX_BLOCKS``) or a
     voxel lies outside it (a step past a ray's end): the caller lists the frame's voxels
@@ -597,7 +597,7 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     for r in range(kind.shape[0]):
         rays += kind[r] != RAY_SKIP
     # rows: at most one per block of the box, and a ray sets its hit and at most max_steps + 1
-    # voxels of its tail (ray_start: its voxel span + 3, + 1), so no growth in the loop
+    # voxels of its tail (ray_state: its voxel span + 3, + 1), so no growth in the loop
     span = np.int64(np.ceil(tail * inv_res)) + 1
     per_ray = 3 * span + 5 if tail > 0.0 else nb
     n = pkeys.shape[0]
@@ -621,39 +621,55 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     ki0 = np.int64(np.floor(ox * inv_res))
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
-    for r in range(ends.shape[0]):
-        kd = kind[r]
-        if kd == RAY_SKIP:
-            continue
-        walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_start(
-            ox, oy, oz, ki0, kj0, kk0, ends[r, 0], ends[r, 1], ends[r, 2], inv_res, res, tail)  # fmt: skip
-        # the ray's voxels: its end voxel first when a hit (words 8 to 15), then each voxel its
-        # walk passes up to the end voxel (not walked): a miss
-        hit = kd == RAY_HIT
-        vi, vj, vk = (ei, ej, ek) if hit else (ci, cj, ck)
-        steps = 0
-        while hit or walk:
-            bi, bj, bk = (vi >> BLOCK_BITS) - bi0, (vj >> BLOCK_BITS) - bj0, (vk >> BLOCK_BITS) - bk0
+    af, ai = ray_start_buffers()
+    nr = ends.shape[0]
+    for c0 in range(0, nr, RAY_CHUNK):  # a chunk of rays: their starts at once, then their hits, their walks
+        c1 = min(nr, c0 + RAY_CHUNK)
+        ray_starts(ends, c0, c1 - c0, ox, oy, oz, ki0, kj0, kk0, inv_res, res, tail, af, ai)
+        for r in range(c0, c1):  # the hits (words 8 to 15): the end voxels of the hit rays
+            if kind[r] != RAY_HIT:
+                continue
+            _, ei, ej, ek, _, _, _, _, _, _, _, _, _, _, _, _, _, _ = ray_state(af, ai, r - c0)
+            bi, bj, bk = (ei >> BLOCK_BITS) - bi0, (ej >> BLOCK_BITS) - bj0, (ek >> BLOCK_BITS) - bk0
             if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
                 return refused
             idx = (bi * nbj + bj) * nbk + bk
             s = np.int64(slot[idx])
-            if s < 0:
-                s = m
+            if s < 0:  # the block's row, made empty (written out in both loops: a helper returning
+                s = m  # (row, rows) took 1.15x the time of the whole kernel)
                 slot[idx] = m
-                keys[m] = pack_block(vi >> BLOCK_BITS, vj >> BLOCK_BITS, vk >> BLOCK_BITS)
+                keys[m] = pack_block(ei >> BLOCK_BITS, ej >> BLOCK_BITS, ek >> BLOCK_BITS)
                 for w in range(16):
                     masks[m, w] = 0
                 m += 1
-            off = voxel_offset(vi, vj, vk)
-            masks[s, (off >> 6) + (8 if hit else 0)] |= np.uint64(1) << np.uint64(off & 63)
-            if hit:  # the hit set: now the walk, from its first voxel
-                hit = False
-                vi, vj, vk = ci, cj, ck
+            off = voxel_offset(ei, ej, ek)
+            masks[s, 8 + (off >> 6)] |= np.uint64(1) << np.uint64(off & 63)
+        for r in range(c0, c1):  # the walks: each voxel a walk passes up to the end voxel (not walked) is a miss
+            if kind[r] == RAY_SKIP:
                 continue
-            _, ci, cj, ck, tmx, tmy, tmz, steps, walk = ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz,
-                                                                 ei, ej, ek, length, steps, max_steps)  # fmt: skip
-            vi, vj, vk = ci, cj, ck
+            walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_state(
+                af, ai, r - c0)  # fmt: skip
+            steps = 0
+            pbi, pbj, pbk, s = np.int64(-1), np.int64(-1), np.int64(-1), np.int64(0)  # the block of the last step
+            while walk:
+                bi, bj, bk = (ci >> BLOCK_BITS) - bi0, (cj >> BLOCK_BITS) - bj0, (ck >> BLOCK_BITS) - bk0
+                if bi != pbi or bj != pbj or bk != pbk:  # a tail passes one or two blocks: look a block up once
+                    if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
+                        return refused
+                    idx = (bi * nbj + bj) * nbk + bk
+                    s = np.int64(slot[idx])
+                    if s < 0:
+                        s = m
+                        slot[idx] = m
+                        keys[m] = pack_block(ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS)
+                        for w in range(16):
+                            masks[m, w] = 0
+                        m += 1
+                    pbi, pbj, pbk = bi, bj, bk
+                off = voxel_offset(ci, cj, ck)
+                masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+                _, ci, cj, ck, tmx, tmy, tmz, steps, walk = ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz,
+                                                                     ei, ej, ek, length, steps, max_steps)  # fmt: skip
     okeys, omasks = _rows_in_key_order(slot, keys, masks, m, np.int64(0))
     hkeys, hmasks = _rows_in_key_order(slot, keys, masks, m, np.int64(8))
     return okeys, omasks, hkeys, hmasks, True
