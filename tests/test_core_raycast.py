@@ -308,3 +308,69 @@ def test_frame_boxes_beyond_a_dense_bitmap_and_voxel_keys_beyond_their_extent():
     x = (KEY_LIMIT - 50) * 0.01
     with pytest.raises(CoreError, match="beyond"):
         fine.integrate_rays([x, 0.0, 0.0], np.array([[x + 1.0, 0.0, 0.0]]), np.array([2], dtype=np.int8))
+
+
+def _start_by_hand(o, e, res, tail):
+    """The DDA's start of one ray, scalar Python floats, written out from OctoMap's
+    computeRayKeys (the first crossing (c + 0.5) res + s res / 2 - r over d, the step res / |d|),
+    with projective depth integration's tail: (walk, end voxel, first voxel, steps, first
+    crossings, crossing steps, length, max_steps)."""
+    far = 1e300
+    o, e = [float(x) for x in o], [float(x) for x in e]
+    ki = tuple(math.floor(c * (1.0 / res)) for c in o)
+    ei = tuple(math.floor(c * (1.0 / res)) for c in e)
+    d = [e[a] - o[a] for a in range(3)]
+    length = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    if ei == ki:
+        return False, ei
+    d = [x / length for x in d]
+    r, ci = list(o), ki
+    if tail > 0.0 and length > tail:
+        r = [e[a] - d[a] * tail for a in range(3)]
+        ci = tuple(math.floor(x * (1.0 / res)) for x in r)
+        length = tail
+        if ci == ei:
+            return False, ei
+    s = tuple((x > 0) - (x < 0) for x in d)
+    tm = tuple(((ci[a] + 0.5) * res + s[a] * res * 0.5 - r[a]) / d[a] if s[a] else far for a in range(3))
+    td = tuple(res / abs(d[a]) if s[a] else far for a in range(3))
+    steps = sum(abs(ei[a] - ci[a]) for a in range(3)) + 3
+    return True, ei, ci, s, tm, td, length, steps
+
+
+@pytest.mark.parametrize("tail", [0.0, 0.04, 0.3])  # (0.04: under a voxel, tails that start in the end voxel)
+def test_ray_starts_on_vectors_are_the_scalar_arithmetic(tail):
+    """``ray_starts`` computes a chunk of rays' DDA starts on vectors, with no branches: every
+    value equals the scalar arithmetic's, bit for bit (rays along the axes, ends in the origin's
+    voxel, tails starting in the end voxel, negative keys, a chunk that starts mid-array and is
+    not full), as ``ray_state`` reads it back."""
+    from ltmap_cli.core.raycast import RAY_CHUNK, ray_start_buffers, ray_starts, ray_state
+
+    rng = np.random.default_rng(7)
+    o = np.array([0.013, -1.27, 0.61])
+    ends = o + rng.normal(size=(3 * RAY_CHUNK, 3)) * rng.choice([0.02, 0.2, 3.0], size=(3 * RAY_CHUNK, 1))
+    ends[:40, 1:] = o[1:]  # along x (either way), along y, along z, the other two axes still
+    ends[40:80, [0, 2]] = o[[0, 2]]
+    ends[80:120, :2] = o[:2]
+    ends[120:140] = o + 0.01  # in the origin's voxel
+    ends[140:160] = o + np.array([0.2, 0.1, 0.0]) + 0.004  # a tail that may start in the end voxel
+    ends[160:170] = o + [[-2.5, -3.1, -0.6]]  # negative keys
+    res = 0.05
+    ki = [np.int64(math.floor(c * (1.0 / res))) for c in o]
+    af, ai = ray_start_buffers()
+    checked = {True: 0, False: 0}
+    for r0, n in ((0, RAY_CHUNK), (RAY_CHUNK + 17, RAY_CHUNK), (2 * RAY_CHUNK + 50, 100)):
+        ray_starts(ends, np.int64(r0), np.int64(n), o[0], o[1], o[2], *ki, 1.0 / res, res, tail, af, ai)
+        for q in range(n):
+            want = _start_by_hand(tuple(o), tuple(ends[r0 + q]), res, tail)
+            got = ray_state(af, ai, np.int64(q))
+            assert got[0] == want[0], (r0 + q, got, want)
+            checked[want[0]] += 1
+            if not want[0]:
+                assert tuple(got[1:4]) == want[1]
+                continue
+            _, ei, ci, s, tm, td, length, steps = want
+            assert tuple(got[1:4]) == ei and tuple(got[4:7]) == ci and tuple(got[7:10]) == s
+            assert tuple(got[10:13]) == tm and tuple(got[13:16]) == td  # (floats, compared exactly)
+            assert got[16] == length and got[17] == steps
+    assert checked[True] > 400 and checked[False] >= 20  # both kinds were met
