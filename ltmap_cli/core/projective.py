@@ -27,7 +27,17 @@ import numpy as np
 from numba import njit
 
 from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
-from .raycast import QUARTER_KEEP, QUIET_ALL, RAY_CHUNK, RAY_HIT, RAY_SKIP, ray_start_buffers, ray_starts, ray_state, ray_step
+from .raycast import (
+    QUARTER_KEEP,
+    QUIET_ALL,
+    RAY_CHUNK,
+    RAY_HIT,
+    RAY_SKIP,
+    ray_start_buffers,
+    ray_starts,
+    ray_state,
+    ray_step,
+)
 
 # a block whose quiet quarters a worker skipped is listed as (its number in the box << SKIP_SHIFT)
 # | those quarters (projective_blocks, stale_skips)
@@ -653,7 +663,7 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
             pbi, pbj, pbk, s = np.int64(-1), np.int64(-1), np.int64(-1), np.int64(0)  # the block of the last step
             while walk:
                 bi, bj, bk = (ci >> BLOCK_BITS) - bi0, (cj >> BLOCK_BITS) - bj0, (ck >> BLOCK_BITS) - bk0
-                if bi != pbi or bj != pbj or bk != pbk:  # a tail passes one or two blocks: look a block up once
+                if bi != pbi or bj != pbj or bk != pbk:  # (a walk stays in a block for several steps: one lookup)
                     if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
                         return refused
                     idx = (bi * nbj + bj) * nbk + bk
