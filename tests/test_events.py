@@ -118,6 +118,7 @@ def test_grouping_separates_space_and_time():
     assert first["extent_min"] == pytest.approx([0.0, 0.0, 0.25]) and first["extent_max"] == pytest.approx(
         [0.1, 0.05, 0.3])
     assert events[2]["latency_s"] == pytest.approx(11 * 0.2)
+    assert first["cells"] == 2 and events[1]["cells"] == 1  # (0, 0) and (1, 0); (6, 0)
     assert set(members[first["id"]].tolist()) == {(0 << 6) | 5, (1 << 6) | 5}
 
 
@@ -346,6 +347,7 @@ def test_event_that_never_changes_p_has_no_latency():
                             final_cols=final)  # fmt: skip
     appear, gone = events
     assert appear["t_in_map_s"] == pytest.approx(21 * 0.2) and appear["p_cells"] == 1
+    assert appear["voxels"] == 2 and appear["cells"] == 1  # the top and the leg: one column
     assert gone["kind"] == "disappear" and gone["p_cells"] == 0
     assert gone["t_in_map_s"] is None and gone["latency_s"] is None
     assert gone["t_lt_s"] == pytest.approx(61 * 0.2)

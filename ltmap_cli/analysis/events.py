@@ -339,9 +339,9 @@ def _event(eid: int, kind: int, rows: np.ndarray, keys: np.ndarray, changed: np.
     cell_lat = np.zeros(0)
     t_start = float(clock.start(since[known].min())) if known.any() else None
     t_in_map = t_in_map_last = None
+    cols = ((keys[:, 0] + _BOFF) << 32) | (keys[:, 1] + _BOFF)  # each voxel's column (its P cell), packed
     if changed.any():
         # per changed cell: its first P change and the first streak start of the event's voxels in it
-        cols = ((keys[:, 0] + _BOFF) << 32) | (keys[:, 1] + _BOFF)
         ch_cols = np.unique(cols[changed])
         pos = np.minimum(np.searchsorted(ch_cols, cols), len(ch_cols) - 1)
         in_ch = ch_cols[pos] == cols
@@ -374,8 +374,8 @@ def _event(eid: int, kind: int, rows: np.ndarray, keys: np.ndarray, changed: np.
         "planner_latency_s": None,
         "t_lt_s": float(clock.end(ticks.min())),
         "voxels": int(len(keys)),
-        "cells": int(len({(int(a), int(b)) for a, b in keys[:, :2]})),
-        "p_cells": int(len({(int(a), int(b)) for a, b in keys[changed, :2]})),
+        "cells": int(len(np.unique(cols))),
+        "p_cells": int(len(np.unique(cols[changed]))),
         "centroid": [float(v) for v in centroid],
         "extent_min": [float(v) for v in lo],
         "extent_max": [float(v) for v in hi],
