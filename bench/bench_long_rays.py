@@ -37,7 +37,8 @@ Configurations (``--configs``, run interleaved): ``projective`` (the default dep
 ``core.projective``), ``exact`` (``map.sensor.depth_integration: exact``: every ray walked whole),
 ``noquiet`` (exact without the quiet blocks), ``serial`` (exact on the reference path: generic
 decoding, one thread), ``rate10`` (exact at 10 depth frames a second), ``1worker`` (the default
-with ``replay.workers: 1``: what the second worker brings). The CPU seconds of each thread (report.json
+with ``replay.workers: 1``: what the second worker brings), ``onethread`` (the default on the
+caller's thread alone, no reader or workers: what the threads cost in CPU). The CPU seconds of each thread (report.json
 ``thread_cpu_s``) bound the speed on more cores than this machine has. Every configuration's maps
 are compared with the first's: arrays that differ, and the IoU of O's occupied voxels, of LT's
 and of P's occupied cells; when ``exact`` runs and is not the first, each is also compared with
@@ -48,7 +49,7 @@ under ``bench/.cache``), interleaved with the current code, ``--repeats`` times 
 that the final maps are the same (O log-odds and stamps, D, bit for bit).
 
 Run: python bench/bench_long_rays.py [--scenes room,hall,house] [--before REF] [--repeats N]
-     [--configs exact,projective,serial,noquiet,rate10,1worker] [--cli]
+     [--configs exact,projective,serial,noquiet,rate10,1worker,onethread] [--cli]
 """
 
 from __future__ import annotations
@@ -311,6 +312,7 @@ CONFIGS = {
     "before": (True, True, None, {}),  # the code of --before REF, in its default configuration
     "rate10": (True, True, True, {**EXACT, "map.sensor.depth_max_rate": 10.0}),  # exact, depth at 10 Hz
     "1worker": (True, True, True, {"replay.workers": 1}),  # the default with one ray worker: how it scales
+    "onethread": (True, False, True, {}),  # the default on one thread: the threads' own CPU cost against it
 }
 BOUND_CORES = (2, 4, 8)  # cores the thread CPU times bound the wall time for
 

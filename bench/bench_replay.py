@@ -227,8 +227,13 @@ def child(name: str, log: Path, static: Path, out: Path) -> None:
 def code_env(ref: str | None = None) -> dict:
     """The environment of a child process that runs the code of git ``ref`` (``code_at``), or
     with None this checkout's: the tree this file is in, not whichever ltmap the venv has
-    installed (a bench run from a second worktree measured the first one's code as "now")."""
+    installed (a bench run from a second worktree measured the first one's code as "now").
+    Without ``PYTHONDONTWRITEBYTECODE``: a user's Python writes ltmap's ``.pyc`` files at its
+    first run and reads them after; with it set (as on some CI and sandbox machines) every
+    process compiled ltmap's modules from source again, 0.2 to 0.4 s of each whole-process
+    figure that no user pays."""
     env = dict(os.environ)
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
     env["PYTHONPATH"] = str(code_at(ref) if ref else ROOT) + os.pathsep + env.get("PYTHONPATH", "")
     return env
 
