@@ -24,6 +24,7 @@ that declares more raises ``TooLargeError`` (a ``LogReadError``, even with --all
 from __future__ import annotations
 
 import errno
+import functools
 import shutil
 import struct
 from collections.abc import Callable, Iterator
@@ -43,6 +44,22 @@ from .bounded import (
 from .skip import SkipBefore, unread_chunks
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
+def crc32(data: bytes) -> int:
+    """CRC-32 (zlib's, the one MCAP's records carry) of ``data``: zlib-ng's, carry-less multiply on
+    vectors, about 15x zlib's on a 4 MB chunk (0.18 s of CPU on a 30 s log of 640x480 depth at
+    30 Hz, 2 % of its replay), else zlib's (the same value)."""
+    return _crc32_function()(data)
+
+
+@functools.cache
+def _crc32_function() -> Callable[[bytes], int]:
+    try:
+        from zlib_ng.zlib_ng import crc32 as fast
+    except ImportError:  # (a platform without its wheel)
+        from zlib import crc32 as fast
+    return fast
+
+
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 SQLITE_MAGIC = b"SQLite format 3\x00"
 
@@ -774,14 +791,18 @@ class McapSource(Source):
         """The records of an MCAP chunk, decompressed within its declared size and the limit
         (``TooLargeError``), its CRC checked."""
         from mcap.records import Chunk
-        from mcap.stream_reader import breakup_chunk
+        from mcap.stream_reader import CRCValidationError, breakup_chunk
 
         where = f"{self.path}: the chunk" + (f" before byte {pos}" if pos is not None else "")
         data = decompress(chunk.compression, chunk.data, chunk.uncompressed_size, self.max_bytes, where)
         plain = Chunk(compression="", data=data, message_end_time=chunk.message_end_time,
                       message_start_time=chunk.message_start_time, uncompressed_crc=chunk.uncompressed_crc,
                       uncompressed_size=chunk.uncompressed_size)
-        return breakup_chunk(plain, validate_crc=True)
+        if chunk.uncompressed_crc != 0:  # (0: the writer computed none, as mcap's own check reads it)
+            crc = crc32(data)
+            if crc != chunk.uncompressed_crc:
+                raise CRCValidationError(expected=chunk.uncompressed_crc, actual=crc, record=plain)
+        return breakup_chunk(plain, validate_crc=False)
 
     def iter(self, topics: set[str], skip: SkipBefore | None = None) -> Iterator[RawMessage]:
         if not topics:
