@@ -333,7 +333,7 @@ def child(name: str, log: Path, out: Path) -> None:
     fast, threads, quiet, settings = CONFIGS[name]
     if quiet is not None:
         LayeredMap.quiet_blocks = quiet
-    bench_replay.warm_kernels(Replay, ReplayRequest, Config, out, fast, threads)
+    bench_replay.warm_kernels(Replay, ReplayRequest, Config, out, fast, threads, log)
     cfg = Config()
     cfg.replay.plots = False
     for key, value in settings.items():
