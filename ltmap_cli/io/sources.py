@@ -44,6 +44,10 @@ from .bounded import (
 from .skip import SkipBefore, unread_chunks
 
 ROS1_MAGIC = b"#ROSBAG V2.0\n"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+
+
 def crc32(data: bytes) -> int:
     """CRC-32 (zlib's, the one MCAP's records carry) of ``data``: zlib-ng's, carry-less multiply on
     vectors, about 15x zlib's on a 4 MB chunk (0.18 s of CPU on a 30 s log of 640x480 depth at
@@ -58,10 +62,6 @@ def _crc32_function() -> Callable[[bytes], int]:
     except ImportError:  # (a platform without its wheel)
         from zlib import crc32 as fast
     return fast
-
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"
-SQLITE_MAGIC = b"SQLite format 3\x00"
 
 
 @dataclass
