@@ -683,6 +683,72 @@ def test_tail_masks_by_hand():
     assert tail_masks(origin, ends[3:], kind[3:], 1.0, 1.0, 3.0, pkeys[:0], pmasks[:0], box, 10)[4] is True
 
 
+def _scalar_walk(af, ai, q):
+    """Ray ``q`` of a ``ray_starts`` chunk walked a step at a time by ``ray_step`` (the walk of
+    ``frame_voxels`` and of whole rays in ``tail_masks``): the voxels it records, in order."""
+    from ltmap_cli.core.raycast import ray_state, ray_step
+
+    walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_state(af, ai, q)
+    steps, out = 0, []
+    while walk:
+        out.append((int(ci), int(cj), int(ck)))
+        _, ci, cj, ck, tmx, tmy, tmz, steps, walk = ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz,
+                                                             ei, ej, ek, length, steps, max_steps)  # fmt: skip
+    return out
+
+
+def test_tail_walks_in_lockstep_are_the_walks_of_ray_step():
+    """``_tail_walks`` (a chunk's tails walked in lockstep, with selects) records for each ray
+    the voxels ``ray_step`` walks, in order: on rays whose crossings tie (diagonals from a voxel's
+    centre, where ``ray_step``'s strict < picks the axis), rays ending on a voxel face (the walk
+    stops when its next crossing is past the ray's length, not at it), rays cut to a tail, and
+    rays whose end voxel is off their path (the walk stops after ``max_steps`` steps)."""
+    from ltmap_cli.core.grid import BLOCK_BITS
+    from ltmap_cli.core.projective import NOT_WALKED, _tail_walks
+    from ltmap_cli.core.raycast import RAY_CHUNK, RS_EI, RS_EK, RS_LENGTH, ray_start_buffers, ray_starts
+
+    rng = np.random.default_rng(17)
+    o = np.array([0.5, 0.5, 0.5])  # a voxel's centre (1 m voxels)
+    ties = [o + np.array(d, dtype=float) for d in
+            [(3, 3, 0), (-4, 4, 0), (2, 0, 2), (0, -3, -3), (3, 3, 3), (-2, -2, 2), (5, 5, 1)]]  # fmt: skip
+    faces = [np.array(e) for e in [(3.0, 0.5, 0.5), (0.5, -2.0, 0.5), (3.0, 3.0, 0.5), (0.5, 0.5, 4.0)]]
+    rand = list(o + rng.uniform(-6.0, 6.0, size=(40, 3)))
+    ends = np.array(ties + faces + rand)
+    n = len(ends)
+    box_blocks = np.array([-2, -2, -2, 4, 4, 4], dtype=np.int64)  # voxels -16 to 15 on each axis
+
+    def lockstep(af, ai, max_it=64):
+        rec = np.empty(max_it * RAY_CHUNK, dtype=np.int64)
+        iters, outside = _tail_walks(af, ai, n, box_blocks, rec, np.empty(RAY_CHUNK, dtype=np.int32), max_it)
+        assert iters > 0 and not outside
+        walks = []
+        for q in range(n):
+            out = []
+            for it in range(iters):
+                code = int(rec[it * RAY_CHUNK + q])
+                if code == NOT_WALKED:
+                    break
+                b, off = code >> (3 * BLOCK_BITS), code & 511
+                bi, bj, bk = b // 16 - 2, (b // 4) % 4 - 2, b % 4 - 2
+                out.append((bi * 8 + (off >> 6), bj * 8 + ((off >> 3) & 7), bk * 8 + (off & 7)))
+            walks.append(out)
+        return walks
+
+    for tail in (50.0, 2.5):  # longer than every ray (walked from the origin's voxel); cut
+        af, ai = ray_start_buffers()
+        ray_starts(ends, 0, n, o[0], o[1], o[2], 0, 0, 0, 1.0, 1.0, tail, af, ai)
+        if tail > 10.0:  # the end voxel moved off the path, the length unbounded: max_steps stops it
+            ai[RS_EI * RAY_CHUNK + 0] += 1
+            ai[RS_EK * RAY_CHUNK + 0] += 2
+            af[RS_LENGTH * RAY_CHUNK + 0] = 1e9
+        want = [_scalar_walk(af, ai, q) for q in range(n)]
+        assert lockstep(af.copy(), ai.copy()) == want
+        if tail > 10.0:
+            assert len(want[0]) == 1 + (4 + 3 + 2 + 3)  # its first voxel and max_steps: |4| + |3| + |2| + 3
+            assert want[1][:3] == [(0, 0, 0), (0, 1, 0), (-1, 1, 0)]  # a tie: y before x (strict <)
+            assert want[len(ties)] == [(0, 0, 0), (1, 0, 0), (2, 0, 0)]  # ends at x = 3.0: voxel 2 walked
+
+
 def test_tail_masks_are_the_listed_tails():
     """On frames of a tilted camera over a wall, a box and a floor, from several poses: the
     misses ``tail_masks`` sets beside the projection's are the tails' misses ``frame_voxels``

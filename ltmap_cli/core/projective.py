@@ -26,13 +26,30 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
+from .grid import BLOCK, BLOCK_BITS, BLOCK_VOXELS, find_block, pack_block, unpack_block, voxel_offset
 from .raycast import (
     QUARTER_KEEP,
     QUIET_ALL,
     RAY_CHUNK,
     RAY_HIT,
     RAY_SKIP,
+    RS_CI,
+    RS_CJ,
+    RS_CK,
+    RS_EI,
+    RS_EJ,
+    RS_EK,
+    RS_LENGTH,
+    RS_SI,
+    RS_SJ,
+    RS_SK,
+    RS_TDX,
+    RS_TDY,
+    RS_TDZ,
+    RS_TMX,
+    RS_TMY,
+    RS_TMZ,
+    RS_WALK,
     ray_start_buffers,
     ray_starts,
     ray_state,
@@ -575,6 +592,69 @@ def _rows_in_key_order(slot, keys, masks, m, w0):
     return out_keys[:t], out_masks[:t]
 
 
+NOT_WALKED = -1  # _tail_walks' record of a ray that walks no more
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _tail_walks(af, ai, n, box_blocks, rec, max_steps, max_it):
+    """The DDA walks of a chunk of ``n`` rays (``ray_starts``' buffers ``af``, ``ai``, updated
+    in place) in lockstep: at iteration ``it`` every ray that still walks records its voxel in
+    ``rec[it * RAY_CHUNK + q]`` as (its block's number in the box << 9) | ``voxel_offset`` (a ray
+    that walks no more: ``NOT_WALKED``), then takes ``ray_step``'s step: the same tie breaking,
+    stop rule and step count, as selects with no branch, so the compiler runs it on vectors,
+    several rays at once (walked a ray at a time, the axis of a step is a branch the CPU
+    mispredicts about every other step). ``box_blocks``: the box's first block and its blocks
+    along each axis (bi0, bj0, bk0, nbi, nbj, nbk); ``max_steps``: room for ``ray_state``'s
+    max_steps of each ray (int32, ``RAY_CHUNK``). Returns (the iterations made, -1 when some ray
+    still walks after ``max_it``; whether a walked voxel lies outside the box)."""
+    C = RAY_CHUNK
+    bi0, bj0, bk0 = box_blocks[0], box_blocks[1], box_blocks[2]
+    nbj, nbk = box_blocks[4], box_blocks[5]
+    ubi, ubj, ubk = np.uint64(box_blocks[3]), np.uint64(nbj), np.uint64(nbk)
+    outside = False
+    for q in range(n):  # (ray_state's, from the first voxel walked)
+        max_steps[q] = (abs(ai[RS_EI * C + q] - ai[RS_CI * C + q]) + abs(ai[RS_EJ * C + q] - ai[RS_CJ * C + q])
+                        + abs(ai[RS_EK * C + q] - ai[RS_CK * C + q]) + 3)  # fmt: skip
+    for it in range(max_it):
+        walking = np.int32(0)
+        for q in range(n):  # (no branches: vectorized)
+            w = ai[RS_WALK * C + q] != 0
+            ci, cj, ck = ai[RS_CI * C + q], ai[RS_CJ * C + q], ai[RS_CK * C + q]
+            bi = np.int64(ci >> BLOCK_BITS) - bi0
+            bj = np.int64(cj >> BLOCK_BITS) - bj0
+            bk = np.int64(ck >> BLOCK_BITS) - bk0
+            outside |= w & ~((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk))
+            code = (((bi * nbj + bj) * nbk + bk) << (3 * BLOCK_BITS)) | np.int64(voxel_offset(ci, cj, ck))
+            rec[it * C + q] = code if w else np.int64(NOT_WALKED)
+            tmx, tmy, tmz = af[RS_TMX * C + q], af[RS_TMY * C + q], af[RS_TMZ * C + q]
+            xy = tmx < tmy  # ray_step's axis: x when tmx < tmy and tmx < tmz, y when tmy <= tmx and
+            d0 = xy & (tmx < tmz)  # tmy < tmz, else z
+            d1 = (~xy) & (tmy < tmz)
+            d2 = ~(d0 | d1)
+            ci = ci + (ai[RS_SI * C + q] if d0 else np.int32(0))
+            cj = cj + (ai[RS_SJ * C + q] if d1 else np.int32(0))
+            ck = ck + (ai[RS_SK * C + q] if d2 else np.int32(0))
+            tmx = tmx + af[RS_TDX * C + q] if d0 else tmx
+            tmy = tmy + af[RS_TDY * C + q] if d1 else tmy
+            tmz = tmz + af[RS_TDZ * C + q] if d2 else tmz
+            ei, ej, ek = ai[RS_EI * C + q], ai[RS_EJ * C + q], ai[RS_EK * C + q]
+            at_end = (ci == ei) & (cj == ej) & (ck == ek)
+            past = min(tmx, min(tmy, tmz)) > af[RS_LENGTH * C + q]
+            # a ray walking at iteration it has made it steps before this one
+            w = w & ~at_end & ~past & (it + 1 <= max_steps[q])
+            ai[RS_CI * C + q] = ci
+            ai[RS_CJ * C + q] = cj
+            ai[RS_CK * C + q] = ck
+            af[RS_TMX * C + q] = tmx
+            af[RS_TMY * C + q] = tmy
+            af[RS_TMZ * C + q] = tmz
+            ai[RS_WALK * C + q] = np.int32(w)
+            walking |= np.int32(w)
+        if walking == 0:
+            return it + 1, outside
+    return -1, outside
+
+
 @njit(cache=True, nogil=True)
 def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_blocks):
     """The rays' tails and hits of a depth frame straight into block masks, with the
@@ -585,6 +665,10 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     voxel box ``box`` holds more than ``max_blocks`` blocks (``LISTED_VOXELS_MAX_BLOCKS``) or a
     voxel lies outside it (a step past a ray's end): the caller lists the frame's voxels
     instead (``frame_voxels``).
+
+    The tails (``tail`` > 0) are walked a chunk of rays at a time in lockstep (``_tail_walks``:
+    0.74x to 0.79x the time of walking them one by one on room, hall and office frames, the same
+    masks); whole rays (``tail`` 0: scans, exact depth) one by one.
 
     One table row per block of the box that has any: words 0 to 7 its misses, 8 to 15 its hits.
     A voxel set twice is set once, so no "listed already" bitmap is kept and nothing is listed;
@@ -632,6 +716,10 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
     af, ai = ray_start_buffers()
+    # the tails' records (_tail_walks): a ray records at most max_steps + 1 <= per_ray voxels
+    rec = np.empty(per_ray * RAY_CHUNK if tail > 0.0 else 0, dtype=np.int64)
+    step_caps = np.empty(RAY_CHUNK, dtype=np.int32)  # (_tail_walks' room for each ray's max_steps)
+    box_blocks = np.array([bi0, bj0, bk0, nbi, nbj, nbk], dtype=np.int64)
     nr = ends.shape[0]
     for c0 in range(0, nr, RAY_CHUNK):  # a chunk of rays: their starts at once, then their hits, their walks
         c1 = min(nr, c0 + RAY_CHUNK)
@@ -654,8 +742,32 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
                 m += 1
             off = voxel_offset(ei, ej, ek)
             masks[s, 8 + (off >> 6)] |= np.uint64(1) << np.uint64(off & 63)
-        for r in range(c0, c1):  # the walks: each voxel a walk passes up to the end voxel (not walked) is a miss
-            if kind[r] == RAY_SKIP:
+        if tail > 0.0:  # the tails, all of a chunk at once (_tail_walks), then their voxels' bits
+            for r in range(c0, c1):
+                if kind[r] == RAY_SKIP:
+                    ai[RS_WALK * RAY_CHUNK + r - c0] = 0
+            iters, outside = _tail_walks(af, ai, c1 - c0, box_blocks, rec, step_caps, per_ray)
+            if outside or iters < 0:
+                return refused
+            for it in range(iters):  # (in memory order; the rows by the block's number, no per-step search)
+                for q in range(c1 - c0):
+                    code = rec[it * RAY_CHUNK + q]
+                    if code == NOT_WALKED:
+                        continue
+                    idx = code >> (3 * BLOCK_BITS)
+                    s = np.int64(slot[idx])
+                    if s < 0:
+                        s = m
+                        slot[idx] = m
+                        keys[m] = pack_block(bi0 + idx // (nbj * nbk), bj0 + (idx // nbk) % nbj, bk0 + idx % nbk)
+                        for w in range(16):
+                            masks[m, w] = 0
+                        m += 1
+                    off = code & (BLOCK_VOXELS - 1)
+                    masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+            continue
+        for r in range(c0, c1):  # whole rays, one by one (their lengths differ widely): each voxel a
+            if kind[r] == RAY_SKIP:  # walk passes up to the end voxel (not walked) is a miss
                 continue
             walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_state(
                 af, ai, r - c0)  # fmt: skip
