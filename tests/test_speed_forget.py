@@ -141,3 +141,26 @@ def test_replay_with_fast_forgetting_checked_every_tick(tmp_path):
 
     patched()
     assert len(checked) > 100 and sum(checked) > 0
+
+
+def test_queue_holds_an_obstacle_once_however_often_it_is_seen():
+    """A spot seen in each of 40 ticks (ST forgotten 60 s after): the queue holds one entry per
+    voxel with ST > 0, not one per sighting (a room seen for 60 s queued 7.5 M); seen no more,
+    each is forgotten at its due tick all the same (checked against the full scan every tick)."""
+    rng = np.random.default_rng(8)
+    cfg = Config().map
+    cfg.layers.st_forget_s = 2.0  # 10 ticks
+    lmap = LayeredMap(cfg)
+    spot = [1.02, 1.03, 0.77] + rng.normal(0, 0.03, size=(300, 3))
+    for _ in range(40):
+        lmap.integrate(np.array([0.0, 0.0, 0.5]), spot)
+        lmap.end_tick()
+        _check_nothing_left(lmap)
+    with_st = int((lmap.D.channel("st") > 0).sum())
+    assert with_st > 10
+    assert int(lmap._fq_meta[0]) == with_st  # (40 sightings each)
+    forgotten = 0
+    for _ in range(12):
+        forgotten += lmap.end_tick().st_forgotten
+        _check_nothing_left(lmap)
+    assert forgotten == with_st and int(lmap._fq_meta[0]) == 0

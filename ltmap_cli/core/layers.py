@@ -268,7 +268,7 @@ class DLayers(NamedTuple):
 
 class ForgetQueue(NamedTuple):
     """The forget queue as the tick kernel appends to it: voxel ids (D block * 512 + offset), the
-    tick each is due, and [head, tail] (``LayeredMap._fq_meta``)."""
+    tick each is due, in no order, and [entries] (``LayeredMap._fq_meta``)."""
 
     vid: np.ndarray
     due: np.ndarray
@@ -316,9 +316,11 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
     (``TickSettings``), the event buffers ``ev`` (``EventBuffers``).
 
     Returns TICK_DONE, or the index to resume from when the D pool, an event buffer or the forget
-    queue ``fq`` (``ForgetQueue``) is full (nothing of that item was changed). A voxel seen as an
-    obstacle is appended to the forget queue, due at ``s.forget_due`` (this was a second pass
-    over the tick buffer, a D lookup per block: 7 % of the map thread's CPU on the room log).
+    queue ``fq`` (``ForgetQueue``) is full (nothing of that item was changed). A voxel that becomes an
+    obstacle (ST was 0) is appended to the forget queue, due at ``s.forget_due``; one seen again
+    is not (``_forget_due`` queues it anew at its due tick, ``last_obs + forget_ticks``), so the
+    queue holds about one entry per obstacle voxel, not one per sighting (a room seen for the
+    queue's 60 s: 7.5 M entries, 90 MB).
     ``counters``: C_OBSTACLES, C_SEEN_FREE, C_LT_ENTERED, C_LT_LEFT, C_HELD. A voxel O says occupied is an obstacle only when a frame of this tick hit
     it (``hit_mark``, cleared here); observed only as a miss it is *held*: ST and LT keep their
     values (an object just removed: O needs several misses to turn free).
@@ -338,7 +340,7 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
     last_b, last_db = np.int64(-1), np.int64(-1)
     for t in range(start, n_tb):
         if (ev.tr_meta[0] >= ev.tr.shape[0] or ev.hist_meta[0] >= ev.hist_i.shape[0]
-                or fq.meta[1] >= fq.vid.shape[0]):  # fmt: skip
+                or fq.meta[0] >= fq.vid.shape[0]):  # fmt: skip
             return t
         b = tb_block[t]
         off = tb_off[t]
@@ -387,10 +389,11 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
             v = old + s.rise * steps
             d.last_obs[db, doff] = tick_index
             last_seen[db, doff] = tick_index
-            q = fq.meta[1]  # (room for it: checked above)
-            fq.vid[q] = np.int64(db) * 512 + doff
-            fq.due[q] = s.forget_due
-            fq.meta[1] = q + 1
+            if old == 0.0:  # a new obstacle: queued once; seen again, _forget_due queues it anew
+                q = fq.meta[0]  # (room for it: checked above)
+                fq.vid[q] = np.int64(db) * 512 + doff
+                fq.due[q] = s.forget_due
+                fq.meta[0] = q + 1
             entered = False
             if v >= 1.0 - 1e-4:
                 v = 1.0
@@ -447,29 +450,59 @@ def _tick_kernel(tb_block, tb_off, n_tb, start, o_coords, logodds, hit_mark, d, 
 
 
 @njit(cache=True, nogil=True)
-def _forget_due(vids, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi, hist_i, hist_v,
-                hist_p, hist_meta):  # fmt: skip
+def _take_due(vid, due, meta, tick_index):
+    """The ids of the forget queue's entries due by ``tick_index``, taken out of it (the others
+    moved up in their place, ``meta[0]`` entries left): one pass over the queue."""
+    n = meta[0]
+    out = np.empty(n, dtype=np.int64)
+    m = 0
+    keep = 0
+    for t in range(n):
+        v = vid[t]
+        if due[t] <= tick_index:
+            out[m] = v
+            m += 1
+        else:
+            vid[keep] = v
+            due[keep] = due[t]
+            keep += 1
+    meta[0] = keep
+    return out[:m]
+
+
+@njit(cache=True, nogil=True)
+def _forget_due(vids, start, d_coords, st, lt, last_obs, obst_since, tick_index, forget_ticks, k_lo, k_hi, hist_i,
+                hist_v, hist_p, hist_meta, fq, counts):  # fmt: skip
     """``_forget_kernel``'s rule for the queued voxels due by this tick (``vids``: their ids,
-    sorted and unique, ``LayeredMap._due_voxels``), in the same (block, offset) order, so with
-    the same history records: a voxel with ST > 0 was seen as an obstacle at ``last_obs`` and
-    queued then, due at ``last_obs + forget_ticks``, the first tick the rule can apply to it. Cost
-    per tick: the voxels due, not the map. Returns the number forgotten, or -1 when the history
-    buffer must grow first (call again)."""
-    n = 0
-    for q in range(vids.shape[0]):
+    sorted and unique, ``LayeredMap._due_voxels``), from ``vids[start]`` on, in the same (block,
+    offset) order, so with the same history records: a voxel with ST > 0 was queued when it became
+    an obstacle, or when it last came due, at ``last_obs + forget_ticks`` of then; the rule applies
+    to it when no obstacle was seen there since (``tick_index - last_obs >= forget_ticks``), else
+    it is queued again at its due tick now (``last_obs + forget_ticks``: the first tick the rule
+    can apply to it). Cost per tick: the voxels due, not the map. ``fq``: the forget queue
+    (``ForgetQueue``), with room for ``vids`` more; ``counts[0]`` counts the voxels forgotten.
+    Returns -1, or the index to go on from when the history buffer must grow first."""
+    for q in range(start, vids.shape[0]):
         vid = vids[q]
         b = vid >> 9
         o = vid & 511
-        if st[b, o] > 0.0 and tick_index - last_obs[b, o] >= forget_ticks:
-            k = np.int64(d_coords[b, 2]) * BLOCK + (o & BLOCK_MASK)
-            if k_lo <= k <= k_hi:
-                if hist_meta[0] >= hist_i.shape[0]:
-                    return -1
-                _record_history(hist_i, hist_v, hist_p, hist_meta, tick_index, vid, 0.0, lt[b, o], False)
-            st[b, o] = 0.0
-            obst_since[b, o] = -1
-            n += 1
-    return n
+        if not st[b, o] > 0.0:
+            continue
+        if tick_index - last_obs[b, o] < forget_ticks:  # seen since it was queued: due later
+            t = fq.meta[0]
+            fq.vid[t] = vid
+            fq.due[t] = last_obs[b, o] + forget_ticks
+            fq.meta[0] = t + 1
+            continue
+        k = np.int64(d_coords[b, 2]) * BLOCK + (o & BLOCK_MASK)
+        if k_lo <= k <= k_hi:
+            if hist_meta[0] >= hist_i.shape[0]:
+                return q
+            _record_history(hist_i, hist_v, hist_p, hist_meta, tick_index, vid, 0.0, lt[b, o], False)
+        st[b, o] = 0.0
+        obst_since[b, o] = -1
+        counts[0] += 1
+    return -1
 
 
 HISTORY_MAX_ROWS = 1 << 22  # history rows (17 bytes each: 68 MB) before its periodic samples are thinned
@@ -721,10 +754,10 @@ class LayeredMap:
         self.events = EventLog()
         self.history_every = 5  # ticks between ST / LT history samples (0: transitions only)
         # forget queue (ST forgetting without scanning the map): voxel ids (D block * 512 + offset)
-        # in due-tick order; meta = [head, tail]
+        # and the tick each is due, about one entry per voxel with ST > 0, in no order
         self._fq_vid = np.empty(1 << 16, dtype=np.int64)
         self._fq_due = np.empty(1 << 16, dtype=np.int32)
-        self._fq_meta = np.zeros(2, dtype=np.int64)  # [head, tail]
+        self._fq_meta = np.zeros(1, dtype=np.int64)  # [entries]
 
     # -- static layer -------------------------------------------------------------------------
     def set_static(self, static: StaticGrid | None) -> None:
@@ -1185,20 +1218,24 @@ class LayeredMap:
                 break
             if self.D.n_blocks >= self.D.max_blocks:
                 self.D.grow()
-            if self._fq_meta[1] >= len(self._fq_vid):
+            if self._fq_meta[0] >= len(self._fq_vid):
                 self._grow_forget_queue()
             ev.grow(self.tick_index, self.history_every)
         d = self.D
-        vids, end = self._due_voxels()
+        vids = self._due_voxels()
+        if self._fq_meta[0] + len(vids) > len(self._fq_vid):  # (room for every one to be queued again)
+            self._grow_forget_queue(len(vids))
+        fq = ForgetQueue(self._fq_vid, self._fq_due, self._fq_meta)
+        counts = np.zeros(1, dtype=np.int64)
+        at = 0
         while True:
-            forgotten = _forget_due(
-                vids, d.block_coords, d.data["st"], d.data["lt"], d.data["last_obs"], d.data["obst_since"],
-                self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v, ev.hist_p, ev.hist_meta,
-            )  # fmt: skip
-            if forgotten >= 0:
+            at = _forget_due(vids, at, d.block_coords, d.data["st"], d.data["lt"], d.data["last_obs"],
+                             d.data["obst_since"], self.tick_index, forget_ticks, k_lo, k_hi, ev.hist_i, ev.hist_v,
+                             ev.hist_p, ev.hist_meta, fq, counts)  # fmt: skip
+            if at < 0:
                 break
             ev.grow(self.tick_index, self.history_every)
-        self._fq_meta[0] = end
+        forgotten = int(counts[0])
         result = TickResult(
             tick_index=self.tick_index,
             observed=n_tb,
@@ -1214,28 +1251,23 @@ class LayeredMap:
         self._tick_first = self.frame_id + 1
         return result
 
-    def _due_voxels(self) -> tuple[np.ndarray, int]:
-        """The forget queue's voxels due by this tick: their ids, sorted and unique (block, then
-        offset, as the full scan visits them), and the queue index after them. (numpy's sort
-        here, not in the kernel: numba compiles np.unique's sorts in about 2 s.)"""
-        head, tail = int(self._fq_meta[0]), int(self._fq_meta[1])
-        # the queue is in due order: up to the first not due (a binary search, not a pass over the queue)
-        end = head + int(np.searchsorted(self._fq_due[head:tail], np.int32(self.tick_index), side="right"))
-        return np.unique(self._fq_vid[head:end]), end
+    def _due_voxels(self) -> np.ndarray:
+        """The forget queue's voxels due by this tick, taken out of it: their ids, sorted and
+        unique (block, then offset, as the full scan visits them). The queue holds about one
+        entry per voxel with ST > 0, in no order (``_take_due``: one pass)."""
+        return np.unique(_take_due(self._fq_vid, self._fq_due, self._fq_meta, np.int64(self.tick_index)))
 
-    def _grow_forget_queue(self) -> None:
-        """Drop the queue's consumed head, and double it when still more than half full."""
-        head, tail = int(self._fq_meta[0]), int(self._fq_meta[1])
-        live = tail - head
-        cap = len(self._fq_vid)
-        new_cap = cap * 2 if live > cap // 2 else cap
+    def _grow_forget_queue(self, more: int = 0) -> None:
+        """Double the queue until it has room for ``more`` entries beyond one."""
+        n, cap = int(self._fq_meta[0]), len(self._fq_vid)
+        new_cap = cap * 2
+        while new_cap < n + more:
+            new_cap *= 2
         vid = np.empty(new_cap, dtype=np.int64)
         due = np.empty(new_cap, dtype=np.int32)
-        vid[:live] = self._fq_vid[head:tail]
-        due[:live] = self._fq_due[head:tail]
+        vid[:n] = self._fq_vid[:n]
+        due[:n] = self._fq_due[:n]
         self._fq_vid, self._fq_due = vid, due
-        self._fq_meta[0] = 0
-        self._fq_meta[1] = live
 
     def _seed_forget_queue(self) -> None:
         """Queue every voxel with ST > 0 of a loaded state at ``last_obs + forget_ticks`` (the
@@ -1245,14 +1277,13 @@ class LayeredMap:
         st = self.D.channel("st")
         b, o = np.nonzero(st > 0)
         due = self.D.channel("last_obs")[b, o].astype(np.int64) + forget_ticks
-        order = np.argsort(due, kind="stable")
-        n = len(order)
+        n = len(due)
         cap = max(1 << 16, 1 << int(np.ceil(np.log2(max(2 * n, 1)))))
         self._fq_vid = np.empty(cap, dtype=np.int64)
         self._fq_due = np.empty(cap, dtype=np.int32)
-        self._fq_vid[:n] = (b.astype(np.int64) * 512 + o)[order]
-        self._fq_due[:n] = np.clip(due[order], -(2**31), 2**31 - 1)
-        self._fq_meta[:] = (0, n)
+        self._fq_vid[:n] = b.astype(np.int64) * 512 + o
+        self._fq_due[:n] = np.clip(due, -(2**31), 2**31 - 1)
+        self._fq_meta[0] = n
 
     # -- long-term seeds ----------------------------------------------------------------------
     def seed_long_term(self, keys: np.ndarray, values) -> None:
