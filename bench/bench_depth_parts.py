@@ -28,6 +28,7 @@ Run: python bench/bench_depth_parts.py [--scenes room,hall,office] [--every 10] 
 from __future__ import annotations
 
 import argparse
+import functools
 import inspect
 import sys
 import time
@@ -99,29 +100,35 @@ def pass_variants():
     return out
 
 
-def counts(lmap, f, ends, kind) -> dict:
-    """The frame's end voxels by kind, the pixels pass 2 looks up, the box's blocks by class."""
+@functools.cache
+def _classes_kernel():
+    """A kernel counting the box's blocks by ``core.projective._classify``'s class (compiled once)."""
     from numba import njit
 
     from ltmap_cli.core import projective as pj
     from ltmap_cli.core.grid import BLOCK_BITS
+
+    @njit(nogil=True)
+    def classes(reach, tmin, tmax, fx, fy, cx, cy, Tinv, box, res, band):
+        h, w = reach.shape
+        far, planes, e = pj._frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
+        n = np.zeros(3, np.int64)
+        for bi in range(box[0] >> BLOCK_BITS, (box[3] >> BLOCK_BITS) + 1):
+            for bj in range(box[1] >> BLOCK_BITS, (box[4] >> BLOCK_BITS) + 1):
+                for bk in range(box[2] >> BLOCK_BITS, (box[5] >> BLOCK_BITS) + 1):
+                    c, _, _, _ = pj._block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far,
+                                                 planes, e)  # fmt: skip
+                    n[c] += 1
+        return n
+
+    return classes
+
+
+def counts(lmap, f, ends, kind) -> dict:
+    """The frame's end voxels by kind, the box's blocks by class."""
+    from ltmap_cli.core import projective as pj
     from ltmap_cli.core.layers import _depth_view
     from ltmap_cli.core.raycast import RAY_CLEAR, RAY_HIT
-
-    global _classes
-    if "_classes" not in globals():
-        @njit(nogil=True)
-        def _classes(reach, tmin, tmax, fx, fy, cx, cy, Tinv, box, res, band):
-            h, w = reach.shape
-            far, planes, e = pj._frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
-            n = np.zeros(3, np.int64)
-            for bi in range(box[0] >> BLOCK_BITS, (box[3] >> BLOCK_BITS) + 1):
-                for bj in range(box[1] >> BLOCK_BITS, (box[4] >> BLOCK_BITS) + 1):
-                    for bk in range(box[2] >> BLOCK_BITS, (box[5] >> BLOCK_BITS) + 1):
-                        c, _, _, _ = pj._block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res,
-                                                     band, far, planes, e)  # fmt: skip
-                        n[c] += 1
-            return n
 
     fx, fy, cx, cy = f["k"]
     d, unit_mm = _depth_view(f["depth"])
@@ -131,7 +138,7 @@ def counts(lmap, f, ends, kind) -> dict:
     R, t = T[:3, :3], T[:3, 3]
     Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
     box = pj.ends_box(np.ascontiguousarray(t), ends, 1.0 / lmap.resolution)
-    cls = _classes(reach, tmin, tmax, fx, fy, cx, cy, Tinv, box, lmap.resolution, band)
+    cls = _classes_kernel()(reach, tmin, tmax, fx, fy, cx, cy, Tinv, box, lmap.resolution, band)
     return {"hit": int((kind == RAY_HIT).sum()), "clear": int((kind == RAY_CLEAR).sum()),
             "culled": int(cls[pj.CULLED]), "front": int(cls[pj.FRONT]), "mixed": int(cls[pj.MIXED])}  # fmt: skip
 

@@ -339,6 +339,13 @@ def ray_starts(ends, r0, n, ox, oy, oz, ki0, kj0, kk0, inv_res, res, tail, af, a
 
 
 @njit(cache=True, nogil=True, inline="always")
+def ray_max_steps(ei, ej, ek, ci, cj, ck):
+    """The steps a walk from voxel (ci, cj, ck) to end voxel (ei, ej, ek) may take: their L1
+    distance and 3 (a walk that passes beside its end voxel stops there)."""
+    return abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
+
+
+@njit(cache=True, nogil=True, inline="always")
 def ray_state(af, ai, q):
     """Ray ``q`` of the chunk ``ray_starts`` computed: (walk, ei, ej, ek, ci, cj, ck, si, sj, sk,
     tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps), (ei, ej, ek) the end voxel, (ci, cj, ck)
@@ -347,7 +354,7 @@ def ray_state(af, ai, q):
     ei, ej, ek = np.int64(ai[RS_EI * C + q]), np.int64(ai[RS_EJ * C + q]), np.int64(ai[RS_EK * C + q])
     ci, cj, ck = np.int64(ai[RS_CI * C + q]), np.int64(ai[RS_CJ * C + q]), np.int64(ai[RS_CK * C + q])
     si, sj, sk = np.int64(ai[RS_SI * C + q]), np.int64(ai[RS_SJ * C + q]), np.int64(ai[RS_SK * C + q])
-    max_steps = abs(ei - ci) + abs(ej - cj) + abs(ek - ck) + 3
+    max_steps = ray_max_steps(ei, ej, ek, ci, cj, ck)
     return (ai[RS_WALK * C + q] != 0, ei, ej, ek, ci, cj, ck, si, sj, sk, af[RS_TMX * C + q], af[RS_TMY * C + q],
             af[RS_TMZ * C + q], af[RS_TDX * C + q], af[RS_TDY * C + q], af[RS_TDZ * C + q], af[RS_LENGTH * C + q],
             max_steps)  # fmt: skip
