@@ -140,6 +140,58 @@ def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, ded
             assert len(k2) < 0.2 * h * w  # mostly repeats: the shortcuts had work to do
 
 
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_fused_depth_kernel_footprint_box_in_view_and_around_the_camera(encoding):
+    """The kernel tests the robot's footprint box only on rows with a pixel no deeper than the
+    distance from the camera to the box's farthest corner. Boxes around the camera (its near
+    floor inside), around a patch of the wall 3 m ahead (the camera outside it, rows above and
+    below without a pixel in it), and one whose farthest corner lies just beyond the wall: the
+    serial steps' rays bit for bit, and the box takes hits in each."""
+    rng = np.random.default_rng(23)
+    h, w = 96, 128
+    f, cx, cy = 300.0, 63.5, 47.5
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    ray_y = (v - cy) / f  # optical frame: y down; the floor is y = 0.4 m, the wall z = 3 m
+    z = np.where(ray_y > 0.4 / 3.0, 0.4 / np.maximum(ray_y, 1e-9), 3.0) + rng.normal(0.0, 0.002, size=(h, w))
+    holes = rng.random((h, w)) < 0.05
+    if encoding == "16UC1":
+        raw = np.round(z * 1000).astype(np.uint16)
+        raw[holes] = 0
+        depth = raw.astype(np.float32) * np.float32(0.001)
+        depth[holes] = np.nan
+    else:
+        raw = z.astype(np.float32)
+        raw[holes] = np.nan
+        depth = raw.copy()
+    T = np.eye(4)  # optical frame (z forward, y down) -> fixed frame (z up): the camera 0.4 m up
+    T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
+    T[:3, 3] = [0.0, 0.0, 0.4]
+    pts = transform_points(T, depth_to_points(depth, f, f, cx, cy))
+    pix_row = np.nonzero(np.isfinite(depth))[0]  # (the points are the valid pixels', row by row)
+    assert len(pix_row) == len(pts)
+    boxes = [  # (robot position, footprint_min, footprint_max)
+        ([0.0, 0.0, 0.0], [-0.3, -0.3, -0.1], [2.7, 0.3, 0.6]),  # the camera and the floor ahead of it
+        ([2.8, 0.1, 0.5], [-0.3, -0.2, -0.15], [0.3, 0.25, 0.1]),  # a patch of the wall (x = 3 m)
+        ([3.0, -0.1, 0.6], [-0.5, -0.2, -0.1], [0.0 + 1e-4, 0.2, 0.1]),  # its far side 0.1 mm behind the wall
+    ]
+    for pos, lo, hi in boxes:
+        robot = np.eye(4)
+        robot[:3, 3] = pos
+        for dedupe in (False, True):
+            lmap = LayeredMap()
+            lmap.cfg.sensor.ground_tolerance = -1.0  # (the floor's returns hit, so the box takes some)
+            lmap.cfg.robot.footprint_min, lmap.cfg.robot.footprint_max = lo, hi
+            e1, k1 = lmap.rays(T[:3, 3], pts, None, 8.0, robot, dedupe)
+            e2, k2 = lmap.depth_rays(raw, f, f, cx, cy, T, 8.0, robot, dedupe)
+            keep = k1 > 0
+            assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+            if not dedupe:
+                _, k0 = lmap.rays(T[:3, 3], pts, None, 8.0, None, False)  # (a ray per pixel)
+                taken = (k0 == 2) & (k1 == 1)  # hits the box made clear
+                rows = np.unique(pix_row[taken])
+                assert 0 < len(rows) < h and taken.sum() >= 10, (pos, len(rows), taken.sum())
+
 @pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
 def test_fused_depth_kernel_pixels_at_max_range(encoding):
     """The kernel skips the max-range cut's square root on rows whose rays all stay below
@@ -202,6 +254,23 @@ def test_fused_depth_kernel_cuts_a_lone_far_pixel_of_a_row():
         assert np.array_equal(e1, e2) and np.array_equal(k1, k2)
         cut = (k2 == 1).reshape(h, w)  # RAY_CLEAR: cut at max_range
         assert cut.all() if far_at is None else (cut.sum() == 1 and cut[far_at])
+    # the lone pixel a hair (5e-10) beyond max_range, at a row's end and the image's corners,
+    # where pass 1's bound on a pixel's range from its depth is tightest (cx off centre: the
+    # row's first pixel is the farthest from the axis)
+    for far_at in ((0, 0), (0, w - 1), (h - 1, 0), (h - 1, w - 1), (12, 0), (12, w - 1)):
+        raw = rng.uniform(1000, 2500, size=(h, w)).astype(np.uint16)
+        raw[far_at] = 3000
+        depth = raw.astype(np.float32) * np.float32(0.001)
+        pts = transform_points(T, depth_to_points(depth, 40.0, 41.0, 27.5, 11.5))
+        length = np.sqrt(((pts - T[:3, 3]) ** 2).sum(axis=1))
+        lmap = LayeredMap()
+        lmap.cfg.sensor.ground_tolerance = -1.0
+        max_range = float(length[far_at[0] * w + far_at[1]]) * (1.0 - 5e-10)
+        e1, k1 = lmap.rays(T[:3, 3], pts, None, max_range, None, False)
+        e2, k2 = lmap.depth_rays(raw, 40.0, 41.0, 27.5, 11.5, T, max_range, None, False)
+        assert np.array_equal(e1, e2) and np.array_equal(k1, k2)
+        cut = (k2 == 1).reshape(h, w)
+        assert cut.sum() == 1 and cut[far_at], far_at
 
 
 def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
