@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, BLOCK_VOXELS, find_block, pack_block, unpack_block, voxel_offset
+from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
 from .raycast import (
     QUARTER_KEEP,
     QUIET_ALL,
