@@ -632,16 +632,21 @@ def _unpack_voxels(keys) -> list:
     return [tuple(int(c) for c in unpack_block(int(key))) for key in keys]
 
 
-def test_tail_masks_by_hand():
+@pytest.mark.parametrize("bitmap", [True, False])
+def test_tail_masks_by_hand(bitmap):
     """``tail_masks`` at 1 m voxels: each ray's last ``tail`` metres walked into the
     projection's masks (the end voxel not walked; a ray shorter than the tail walked from the
     origin's voxel; a dropped ray nothing), the hit rays' end voxels into masks of their own,
     keys ascending, new blocks added in key order; a voxel outside the frame's box refuses (the
-    caller lists the frame's voxels instead)."""
+    caller lists the frame's voxels instead). The tails' misses set in a bitmap of the box's
+    blocks and, in a box over ``bitmap_max_blocks``, in rows found voxel by voxel: the same."""
     from ltmap_cli.core.grid import pack_blocks
     from ltmap_cli.core.projective import LISTED_VOXELS_MAX_BLOCKS as LIMIT
-    from ltmap_cli.core.projective import tail_masks
+    from ltmap_cli.core.projective import tail_masks as masks_of
     from ltmap_cli.core.raycast import RAY_CLEAR, RAY_HIT, RAY_SKIP
+
+    def tail_masks(*a):
+        return masks_of(*a, 1 << 16 if bitmap else 0)
 
     box = np.array([-16, 0, 0, 23, 15, 7], dtype=np.int64)  # blocks x -2..2, y 0..1, z 0
     pkeys = np.sort(pack_blocks(np.array([[-1, 0, 0], [1, 1, 0]], dtype=np.int64)))
@@ -771,13 +776,14 @@ def test_tail_masks_are_the_listed_tails():
         hits, misses = m.frame_voxels(T[:3, 3], ends, kind, tail)
         empty_keys, empty_masks = np.empty(0, dtype=np.int64), np.empty((0, 8), dtype=np.uint64)
         box = ends_box(np.ascontiguousarray(T[:3, 3]), ends, 1.0 / m.resolution)
-        keys, masks, hkeys, hmasks, ok = tail_masks(np.ascontiguousarray(T[:3, 3]), ends, kind, 1.0 / m.resolution,
-                                                    m.resolution, tail, empty_keys, empty_masks, box,
-                                                    LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
-        assert ok and len(misses) > 500 and len(hits) > 100
         hit_set = set(_unpack_voxels(hits))
-        assert _mask_voxels(hkeys, hmasks) == hit_set
-        assert _mask_voxels(keys, masks) - hit_set == set(_unpack_voxels(misses))
+        for bitmap_max in (LISTED_VOXELS_MAX_BLOCKS, 0):  # the tails' misses in a bitmap, in rows
+            keys, masks, hkeys, hmasks, ok = tail_masks(np.ascontiguousarray(T[:3, 3]), ends, kind,
+                                                        1.0 / m.resolution, m.resolution, tail, empty_keys,
+                                                        empty_masks, box, LISTED_VOXELS_MAX_BLOCKS, bitmap_max)  # fmt: skip
+            assert ok and len(misses) > 500 and len(hits) > 100
+            assert _mask_voxels(hkeys, hmasks) == hit_set
+            assert _mask_voxels(keys, masks) - hit_set == set(_unpack_voxels(misses))
 
 
 def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):

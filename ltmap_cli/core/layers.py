@@ -42,6 +42,7 @@ from .grid import (
 from .projective import (
     LISTED_VOXELS_MAX_BLOCKS,
     PROJECTIVE_CHUNK_BLOCKS,
+    TAIL_BITMAP_MAX_BLOCKS,
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
     ends_box,
@@ -973,7 +974,7 @@ class LayeredMap:
             lo, hi = box[:3] * self.resolution, (box[3:] + 1) * self.resolution
             check_extent(origin, float(np.max(np.maximum(origin - lo, hi - origin))), self.resolution)
         keys, masks, hk, hm, ok = tail_masks(origin, ends, kind, inv_res, self.resolution, float(tail), pkeys, pmasks,
-                                             box, LISTED_VOXELS_MAX_BLOCKS)  # fmt: skip
+                                             box, LISTED_VOXELS_MAX_BLOCKS, TAIL_BITMAP_MAX_BLOCKS)  # fmt: skip
         if ok:
             done = FrameMasks(keys, masks) if projection is None else projection._replace(keys=keys, masks=masks)
             return _NO_KEYS, _NO_KEYS, done._replace(hits=(hk, hm))

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .grid import BLOCK, BLOCK_BITS, find_block, pack_block, unpack_block, voxel_offset
+from .grid import BLOCK, BLOCK_BITS, BLOCK_VOXELS, find_block, pack_block, unpack_block, voxel_offset
 from .raycast import (
     QUARTER_KEEP,
     QUIET_ALL,
@@ -569,32 +569,31 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
 # a frame box of more blocks keeps its hits and tail misses as lists (tail_masks' table of the
 # box's blocks, 4 bytes each, would be over 1 MB: only at resolutions far finer than 0.05 m)
 LISTED_VOXELS_MAX_BLOCKS = 1 << 18
+# tail_masks sets the tails' misses in a bitmap of the box's blocks up to this many (64 bytes a
+# block: 4 MB; zeroing and reading it each frame costs what the rows would save in a larger box)
+TAIL_BITMAP_MAX_BLOCKS = 1 << 16
 
 
 @njit(cache=True, nogil=True)
-def _bitmap_rows(bits, nb, bi0, bj0, bk0, nbj, nbk):
-    """The blocks of a box's bitmap ``bits`` (8 words a block, the box's ``nb`` blocks in x, y, z
-    order: ``pack_block``'s order) with any bit: (keys ascending, masks (n, 8))."""
-    n = 0
-    for idx in range(nb):
-        any_bit = np.uint64(0)
-        for w in range(8):
-            any_bit |= bits[idx * 8 + w]
-        n += np.int64(any_bit != 0)
-    keys = np.empty(n, dtype=np.int64)
-    masks = np.empty((n, 8), dtype=np.uint64)
+def _rows_in_key_order(slot, keys, masks, m, w0):
+    """The rows of ``keys[:m]`` with any bit in words ``w0`` to ``w0`` + 7 of ``masks``, in key
+    order (the box's blocks walked in x, y, z order, ``pack_block``'s order; no sort: numba's
+    argsort took 2 s of a first run's compiling): (keys, masks (n, 8))."""
+    out_keys = np.empty(m, dtype=np.int64)
+    out_masks = np.empty((m, 8), dtype=np.uint64)
     t = 0
-    for idx in range(nb):
+    for idx in range(slot.shape[0]):
+        o = slot[idx]
+        if o < 0:
+            continue
         any_bit = np.uint64(0)
         for w in range(8):
-            any_bit |= bits[idx * 8 + w]
-        if any_bit == 0:
-            continue
-        keys[t] = pack_block(bi0 + idx // (nbj * nbk), bj0 + (idx // nbk) % nbj, bk0 + idx % nbk)
-        for w in range(8):
-            masks[t, w] = bits[idx * 8 + w]
-        t += 1
-    return keys, masks
+            out_masks[t, w] = masks[o, w0 + w]
+            any_bit |= masks[o, w0 + w]
+        if any_bit != 0:
+            out_keys[t] = keys[o]
+            t += 1
+    return out_keys[:t], out_masks[:t]
 
 
 NOT_WALKED = -1  # _tail_walks' record of a ray that walks no more
@@ -661,7 +660,7 @@ def _tail_walks(af, ai, n, box_blocks, rec, max_steps, max_it):
 
 
 @njit(cache=True, nogil=True)
-def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_blocks):
+def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_blocks, bitmap_max_blocks):
     """The rays' tails and hits of a depth frame straight into block masks, with the
     projection's: (keys, masks, hit keys, hit masks, True), keys ascending; the masks hold the
     projection's blocks (``pkeys`` ascending, ``pmasks``) with the misses of every ray's last
@@ -671,14 +670,15 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     voxel lies outside it (a step past a ray's end): the caller lists the frame's voxels
     instead (``frame_voxels``).
 
-    The bits are set in two bitmaps of the box's blocks, misses and hits (64 bytes a block each:
-    at most 34 MB together), with no row search per voxel, and the blocks with any bit are listed
-    once at the end (the tails took 0.83x to 0.84x the time of setting bits in rows found voxel
-    by voxel, on room, hall and office frames). The tails (``tail`` > 0) are walked a chunk of rays at
-    a time in lockstep (``_tail_walks``: 0.79x to 0.84x the time of walking them one by one, the
-    same masks), their voxels set with no branch; whole rays (``tail`` 0: scans, exact depth)
-    one by one.
+    The tails (``tail`` > 0) are walked a chunk of rays at a time in lockstep (``_tail_walks``:
+    0.79x to 0.84x the time of walking them one by one on room, hall and office frames, the same
+    masks), their voxels set in a bitmap of the box's blocks (64 bytes a block; in a box of at
+    most ``bitmap_max_blocks``, ``TAIL_BITMAP_MAX_BLOCKS``: the bench scenes' depth frames hold
+    340 to 2,400) with no branch and no row search per voxel, and ORed into the rows once a frame
+    (0.85x to 0.87x the time of setting them in the rows voxel by voxel, as a larger box still
+    does); whole rays (``tail`` 0: scans, exact depth) one by one.
 
+    One table row per block of the box that has any: words 0 to 7 its misses, 8 to 15 its hits.
     A voxel set twice is set once, so no "listed already" bitmap is kept and nothing is listed;
     a tail's miss on a voxel this frame hits is left to the map thread, which updates a voxel at
     most once a frame, hits first (``apply_mask_updates``). The map thread then applies the
@@ -695,43 +695,67 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     refused = (pkeys[:0], no_masks, pkeys[:0], no_masks, False)
     if nb > max_blocks:
         return refused
-    # the misses (one more block for the records of rays that walk no more) and the hits
-    mbits = np.zeros((nb + 1) * 8, dtype=np.uint64)
-    hbits = np.zeros(nb * 8, dtype=np.uint64)
-    sink = np.int64(nb) << (3 * BLOCK_BITS)
-    for t in range(pkeys.shape[0]):
+    rays = 0
+    for r in range(kind.shape[0]):
+        rays += kind[r] != RAY_SKIP
+    # rows: at most one per block of the box, and a ray sets its hit and at most max_steps + 1
+    # voxels of its tail (ray_state: its voxel span + 3, + 1), so no growth in the loop
+    span = np.int64(np.ceil(tail * inv_res)) + 1
+    per_ray = 3 * span + 5 if tail > 0.0 else nb
+    n = pkeys.shape[0]
+    cap = min(nb, n + rays * per_ray)
+    slot = np.empty(nb, dtype=np.int32)
+    for t in range(nb):
+        slot[t] = -1
+    keys = np.empty(cap, dtype=np.int64)
+    masks = np.empty((cap, 16), dtype=np.uint64)
+    for t in range(n):
         bi, bj, bk = unpack_block(pkeys[t])
-        bi, bj, bk = bi - bi0, bj - bj0, bk - bk0
-        if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
+        if not (bi0 <= bi < bi0 + nbi and bj0 <= bj < bj0 + nbj and bk0 <= bk < bk0 + nbk):
             return refused
-        idx = (bi * nbj + bj) * nbk + bk
+        slot[((bi - bi0) * nbj + (bj - bj0)) * nbk + (bk - bk0)] = t
+        keys[t] = pkeys[t]
         for w in range(8):
-            mbits[idx * 8 + w] |= pmasks[t, w]
+            masks[t, w] = pmasks[t, w]
+            masks[t, 8 + w] = 0
+    m = n
     ox, oy, oz = origin[0], origin[1], origin[2]
     ki0 = np.int64(np.floor(ox * inv_res))
     kj0 = np.int64(np.floor(oy * inv_res))
     kk0 = np.int64(np.floor(oz * inv_res))
     af, ai = ray_start_buffers()
     # the tails' records (_tail_walks): a ray records at most max_steps + 1 <= per_ray voxels
-    # (ray_state: its voxel span + 3, + 1)
-    span = np.int64(np.ceil(tail * inv_res)) + 1
-    per_ray = 3 * span + 5
     rec = np.empty(per_ray * RAY_CHUNK if tail > 0.0 else 0, dtype=np.int64)
+    # the tails' misses, in a box of at most bitmap_max_blocks blocks: a bitmap of its blocks
+    # (8 words each, in the box's block order; one more block for the records of rays that walk
+    # no more), set with no branch and no row search per record, then ORed into the rows once
+    dense = tail > 0.0 and nb <= bitmap_max_blocks
+    sink = np.int64(nb) << (3 * BLOCK_BITS)
+    tbits = np.zeros((nb + 1) * 8 if dense else 0, dtype=np.uint64)
     step_caps = np.empty(RAY_CHUNK, dtype=np.int32)  # (_tail_walks' room for each ray's max_steps)
     box_blocks = np.array([bi0, bj0, bk0, nbi, nbj, nbk], dtype=np.int64)
     nr = ends.shape[0]
     for c0 in range(0, nr, RAY_CHUNK):  # a chunk of rays: their starts at once, then their hits, their walks
         c1 = min(nr, c0 + RAY_CHUNK)
         ray_starts(ends, c0, c1 - c0, ox, oy, oz, ki0, kj0, kk0, inv_res, res, tail, af, ai)
-        for r in range(c0, c1):  # the hits: the end voxels of the hit rays
+        for r in range(c0, c1):  # the hits (words 8 to 15): the end voxels of the hit rays
             if kind[r] != RAY_HIT:
                 continue
             _, ei, ej, ek, _, _, _, _, _, _, _, _, _, _, _, _, _, _ = ray_state(af, ai, r - c0)
             bi, bj, bk = (ei >> BLOCK_BITS) - bi0, (ej >> BLOCK_BITS) - bj0, (ek >> BLOCK_BITS) - bk0
             if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
                 return refused
+            idx = (bi * nbj + bj) * nbk + bk
+            s = np.int64(slot[idx])
+            if s < 0:  # the block's row, made empty (written out in both loops: a helper returning
+                s = m  # (row, rows) took 1.15x the time of the whole kernel)
+                slot[idx] = m
+                keys[m] = pack_block(ei >> BLOCK_BITS, ej >> BLOCK_BITS, ek >> BLOCK_BITS)
+                for w in range(16):
+                    masks[m, w] = 0
+                m += 1
             off = voxel_offset(ei, ej, ek)
-            hbits[((bi * nbj + bj) * nbk + bk) * 8 + (off >> 6)] |= np.uint64(1) << np.uint64(off & 63)
+            masks[s, 8 + (off >> 6)] |= np.uint64(1) << np.uint64(off & 63)
         if tail > 0.0:  # the tails, all of a chunk at once (_tail_walks), then their voxels' bits
             for r in range(c0, c1):
                 if kind[r] == RAY_SKIP:
@@ -739,11 +763,27 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
             iters, outside = _tail_walks(af, ai, c1 - c0, box_blocks, rec, step_caps, per_ray)
             if outside or iters < 0:
                 return refused
-            for it in range(iters):  # (in memory order)
+            for it in range(iters if dense else 0):  # (in memory order)
                 for q in range(c1 - c0):
                     code = rec[it * RAY_CHUNK + q]
                     code = sink if code == NOT_WALKED else code
-                    mbits[code >> 6] |= np.uint64(1) << np.uint64(code & 63)
+                    tbits[code >> 6] |= np.uint64(1) << np.uint64(code & 63)
+            for it in range(0 if dense else iters):  # (a larger box: the rows by the block's number)
+                for q in range(c1 - c0):
+                    code = rec[it * RAY_CHUNK + q]
+                    if code == NOT_WALKED:
+                        continue
+                    idx = code >> (3 * BLOCK_BITS)
+                    s = np.int64(slot[idx])
+                    if s < 0:
+                        s = m
+                        slot[idx] = m
+                        keys[m] = pack_block(bi0 + idx // (nbj * nbk), bj0 + (idx // nbk) % nbj, bk0 + idx % nbk)
+                        for w in range(16):
+                            masks[m, w] = 0
+                        m += 1
+                    off = code & (BLOCK_VOXELS - 1)
+                    masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
             continue
         for r in range(c0, c1):  # whole rays, one by one (their lengths differ widely): each voxel a
             if kind[r] == RAY_SKIP:  # walk passes up to the end voxel (not walked) is a miss
@@ -751,20 +791,44 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
             walk, ei, ej, ek, ci, cj, ck, si, sj, sk, tmx, tmy, tmz, tdx, tdy, tdz, length, max_steps = ray_state(
                 af, ai, r - c0)  # fmt: skip
             steps = 0
-            pbi, pbj, pbk, row = np.int64(-1), np.int64(-1), np.int64(-1), np.int64(0)  # the block of the last step
+            pbi, pbj, pbk, s = np.int64(-1), np.int64(-1), np.int64(-1), np.int64(0)  # the block of the last step
             while walk:
                 bi, bj, bk = (ci >> BLOCK_BITS) - bi0, (cj >> BLOCK_BITS) - bj0, (ck >> BLOCK_BITS) - bk0
-                if bi != pbi or bj != pbj or bk != pbk:  # (a walk stays in a block for several steps)
+                if bi != pbi or bj != pbj or bk != pbk:  # (a walk stays in a block for several steps: one lookup)
                     if not ((np.uint64(bi) < ubi) & (np.uint64(bj) < ubj) & (np.uint64(bk) < ubk)):
                         return refused
-                    row = ((bi * nbj + bj) * nbk + bk) * 8
+                    idx = (bi * nbj + bj) * nbk + bk
+                    s = np.int64(slot[idx])
+                    if s < 0:
+                        s = m
+                        slot[idx] = m
+                        keys[m] = pack_block(ci >> BLOCK_BITS, cj >> BLOCK_BITS, ck >> BLOCK_BITS)
+                        for w in range(16):
+                            masks[m, w] = 0
+                        m += 1
                     pbi, pbj, pbk = bi, bj, bk
                 off = voxel_offset(ci, cj, ck)
-                mbits[row + (off >> 6)] |= np.uint64(1) << np.uint64(off & 63)
+                masks[s, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
                 _, ci, cj, ck, tmx, tmy, tmz, steps, walk = ray_step(ci, cj, ck, tmx, tmy, tmz, si, sj, sk, tdx, tdy, tdz,
                                                                      ei, ej, ek, length, steps, max_steps)  # fmt: skip
-    okeys, omasks = _bitmap_rows(mbits, nb, bi0, bj0, bk0, nbj, nbk)
-    hkeys, hmasks = _bitmap_rows(hbits, nb, bi0, bj0, bk0, nbj, nbk)
+    for idx in range(nb if dense else 0):  # the tails' bits into the blocks' rows
+        any_bit = np.uint64(0)
+        for w in range(8):
+            any_bit |= tbits[idx * 8 + w]
+        if any_bit == 0:
+            continue
+        s = np.int64(slot[idx])
+        if s < 0:
+            s = m
+            slot[idx] = m
+            keys[m] = pack_block(bi0 + idx // (nbj * nbk), bj0 + (idx // nbk) % nbj, bk0 + idx % nbk)
+            for w in range(16):
+                masks[m, w] = 0
+            m += 1
+        for w in range(8):
+            masks[s, w] |= tbits[idx * 8 + w]
+    okeys, omasks = _rows_in_key_order(slot, keys, masks, m, np.int64(0))
+    hkeys, hmasks = _rows_in_key_order(slot, keys, masks, m, np.int64(8))
     return okeys, omasks, hkeys, hmasks, True
 
 
