@@ -95,18 +95,15 @@ def test_fused_depth_kernel_equals_serial_steps(encoding, dedupe, max_range):
         assert np.array_equal(m1.O.channel("logodds"), m2.O.channel("logodds"))
 
 
-@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
-@pytest.mark.parametrize("dedupe", [True, False])
-@pytest.mark.parametrize("max_range", [1.6, 4.0, 0.0])
-def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, dedupe, max_range):
-    """A camera's view of a floor and a wall (2 mm noise, holes): neighbouring pixels end in the
-    same voxel, so the kernel's shortcuts (the pixels before and above) carry most pixels, and
-    with max_range 1.6 m most of the wall is cut. Still bit for bit the serial steps' rays."""
-    rng = np.random.default_rng(5)
+FW_F, FW_CX, FW_CY = 300.0, 63.5, 47.5  # _floor_and_wall's camera (96 x 128 pixels)
+
+
+def _floor_and_wall(encoding, rng):
+    """A camera's view of a floor (y = 0.4 m in the optical frame, y down) and a wall (z = 3 m),
+    2 mm noise, 5 % holes: (raw pixels of ``encoding``, their metres as float32, NaN for holes)."""
     h, w = 96, 128
-    f, cx, cy = 300.0, 63.5, 47.5
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    ray_y = (v - cy) / f  # optical frame: y down; the floor is y = 0.4 m, the wall z = 3 m
+    v, _ = np.mgrid[0:h, 0:w].astype(np.float64)
+    ray_y = (v - FW_CY) / FW_F
     z = np.where(ray_y > 0.4 / 3.0, 0.4 / np.maximum(ray_y, 1e-9), 3.0)
     z = z + rng.normal(0.0, 0.002, size=z.shape)
     holes = rng.random((h, w)) < 0.05
@@ -119,6 +116,19 @@ def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, ded
         raw = z.astype(np.float32)
         raw[holes] = np.nan
         depth = raw.copy()
+    return raw, depth
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+@pytest.mark.parametrize("dedupe", [True, False])
+@pytest.mark.parametrize("max_range", [1.6, 4.0, 0.0])
+def test_fused_depth_kernel_equals_serial_steps_on_smooth_surfaces(encoding, dedupe, max_range):
+    """A camera's view of a floor and a wall (2 mm noise, holes): neighbouring pixels end in the
+    same voxel, so the kernel's shortcuts (the pixels before and above) carry most pixels, and
+    with max_range 1.6 m most of the wall is cut. Still bit for bit the serial steps' rays."""
+    raw, depth = _floor_and_wall(encoding, np.random.default_rng(5))
+    h, w = raw.shape
+    f, cx, cy = FW_F, FW_CX, FW_CY
     for trial in range(3):
         T = np.eye(4)  # optical frame (z forward, y down) -> fixed frame (z up), then a small turn
         T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
@@ -148,22 +158,9 @@ def test_fused_depth_kernel_footprint_box_in_view_and_around_the_camera(encoding
     floor inside), around a patch of the wall 3 m ahead (the camera outside it, rows above and
     below without a pixel in it), and one whose farthest corner lies just beyond the wall: the
     serial steps' rays bit for bit, and the box takes hits in each."""
-    rng = np.random.default_rng(23)
-    h, w = 96, 128
-    f, cx, cy = 300.0, 63.5, 47.5
-    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
-    ray_y = (v - cy) / f  # optical frame: y down; the floor is y = 0.4 m, the wall z = 3 m
-    z = np.where(ray_y > 0.4 / 3.0, 0.4 / np.maximum(ray_y, 1e-9), 3.0) + rng.normal(0.0, 0.002, size=(h, w))
-    holes = rng.random((h, w)) < 0.05
-    if encoding == "16UC1":
-        raw = np.round(z * 1000).astype(np.uint16)
-        raw[holes] = 0
-        depth = raw.astype(np.float32) * np.float32(0.001)
-        depth[holes] = np.nan
-    else:
-        raw = z.astype(np.float32)
-        raw[holes] = np.nan
-        depth = raw.copy()
+    raw, depth = _floor_and_wall(encoding, np.random.default_rng(23))
+    h, w = raw.shape
+    f, cx, cy = FW_F, FW_CX, FW_CY
     T = np.eye(4)  # optical frame (z forward, y down) -> fixed frame (z up): the camera 0.4 m up
     T[:3, :3] = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
     T[:3, 3] = [0.0, 0.0, 0.4]
