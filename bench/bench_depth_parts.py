@@ -153,7 +153,7 @@ def time_parts(frames: list[dict], rounds: int) -> tuple[dict, dict]:
     lmap = LayeredMap(Config().map)
     sc = lmap.cfg.sensor
     variants = pass_variants()
-    fp = lmap._footprint(None)  # (the replay passes the robot's pose: its footprint test costs the same)
+    fp = lmap._footprint(None)  # (the replay passes the robot's pose: its box is tested only on rows nearer than its far corner)
 
     def one(f, spent, tally):
         fx, fy, cx, cy = f["k"]

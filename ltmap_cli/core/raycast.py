@@ -899,9 +899,6 @@ def _depth_rays_pass(
         xr[u] = (np.float64(u) - cx) / fx
     # a ray is cut only beyond max_range: below this squared length it surely is not (no sqrt)
     safe2 = (max_range * (1.0 - 1e-9)) ** 2 if max_range > 0.0 else np.inf
-    # ... and a pixel's range is at most its depth z times the row's greatest sqrt(1 + xr^2 +
-    # yv^2): below the row's zcut it is surely not beyond max_range (pass 1 compares z alone)
-    xr2 = max(xr[0] * xr[0], xr[w - 1] * xr[w - 1]) if w > 0 else 0.0
     use_ground = ground_tol >= 0.0
     # the robot's footprint box: a point in it is at most the distance from the camera to the
     # box's farthest corner (a box is convex), and a pixel's range is at least its depth z, so
@@ -926,7 +923,6 @@ def _depth_rays_pass(
     idx = np.empty(w, dtype=np.int64)
     for v in range(h):
         yv = (np.float64(v) - cy) / fy
-        zcut = max_range * (1.0 - 1e-9) / (np.sqrt(1.0 + xr2 + yv * yv) * (1.0 + 1e-9)) if max_range > 0.0 else np.inf
         n_far = np.int32(0)  # the row's pixels that may be beyond max_range (an integer sum vectorizes)
         n_near = np.int32(0)  # ... and those that may be in the robot's footprint box
         for u in range(w):  # pass 1: no branches
@@ -944,7 +940,8 @@ def _depth_rays_pass(
             py = t10 * x + t11 * y + t12 * z + t13
             pz = t20 * x + t21 * y + t22 * z + t23
             valid = valid & np.isfinite(px) & np.isfinite(py) & np.isfinite(pz)
-            n_far += np.int32(z >= zcut)  # (an invalid pixel's key is NO_KEY: pass 1a skips it)
+            dx, dy, dz = px - ox, py - oy, pz - oz
+            n_far += np.int32(not (dx * dx + dy * dy + dz * dz < safe2))  # (NaN: may be)
             n_near += np.int32(valid & (z <= zfp))  # (a hole's z is 0)
             hit = not (use_ground & (abs(pz) <= ground_tol))  # (the footprint box: pass 1a)
             # the voxel through int32 (keys are within +-2^20): AVX2 has no vector conversion of
