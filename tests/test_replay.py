@@ -566,14 +566,18 @@ def test_an_interrupted_replay_writes_the_map_of_the_log_read_so_far(tmp_path):
     cfg = Config()
     cfg.replay.plots = False
     (tmp_path / "a").mkdir()
-    rep = StopAt12(cfg, ReplayRequest([log], tmp_path / "a")).run()
+    stopped_run = StopAt12(cfg, ReplayRequest([log], tmp_path / "a"))
+    rep = stopped_run.run()
+    assert not stopped_run.whole_log_read  # (the CLI's Ctrl-C handler says what it stopped by this)
     stop = rep["interrupted_at_s"]
     assert 12.0 <= stop < 12.1 and rep["log_duration_s"] == stop and not rep["frames_skipped"], rep
     cfg2 = Config()
     cfg2.replay.plots = False
     cfg2.replay.end_s = stop + 0.0005  # (the report rounds to the ms)
     (tmp_path / "b").mkdir()
-    ref = Replay(cfg2, ReplayRequest([log], tmp_path / "b")).run()
+    ref_run = Replay(cfg2, ReplayRequest([log], tmp_path / "b"))
+    ref = ref_run.run()
+    assert ref_run.whole_log_read  # (all of its window)
     assert rep["frames_used"] == ref["frames_used"] and rep["ticks"] == ref["ticks"]
     assert ref["interrupted_at_s"] is None
     a, _ = read_state(tmp_path / "a" / "snapshots" / "state_final.npz")

@@ -88,7 +88,9 @@ def first_ctrl_c_stops(run: Replay, say, output: Path):
     """While in it, a first Ctrl-C (SIGINT) stops reading the log: the frames read so far are
     mapped and the outputs written as for a log that ended there (``Replay.interrupt``); a second
     one stops at once (KeyboardInterrupt: nothing written, the output folder keeps what it held).
-    Not in a thread other than the main one, nor when SIGINT is ignored (a background job)."""
+    A first one after the whole log was read (``Replay.whole_log_read``) says so: the run ends as
+    a complete one. Not in a thread other than the main one, nor when SIGINT is ignored (a
+    background job)."""
     old = signal.getsignal(signal.SIGINT) if threading.current_thread() is threading.main_thread() else None
     if old is None or old is signal.SIG_IGN:
         yield
@@ -96,9 +98,12 @@ def first_ctrl_c_stops(run: Replay, say, output: Path):
 
     def stop(signum, frame):
         signal.signal(signal.SIGINT, signal.default_int_handler)  # the second Ctrl-C
+        again = f"Ctrl-C again to stop at once; {output}/ then keeps what it held"
+        if run.whole_log_read:  # (nothing left to stop: the outputs are those of the whole log)
+            say(f"ltmap: interrupted after the whole log was read: finishing {output}/ ({again})")
+            return
         run.interrupt()
-        say(f"ltmap: interrupted: mapping the frames read so far and writing {output}/ (Ctrl-C again to stop "
-            f"at once; {output}/ then keeps what it held)")
+        say(f"ltmap: interrupted: mapping the frames read so far and writing {output}/ ({again})")
 
     signal.signal(signal.SIGINT, stop)
     try:

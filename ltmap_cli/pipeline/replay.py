@@ -183,6 +183,7 @@ class Replay:
         self._warm = False
         self._compile_wait_s = 0.0  # the wait for a first run's compiling children (report.json kernels_compiled_s)
         self._stop = threading.Event()
+        self.whole_log_read = False  # the log's last frame was read (an interrupt then changes nothing)
         self._workers_cpu_s = 0.0  # CPU seconds of the ray workers (report.json thread_cpu_s)
         self._reader_cpu_s = 0.0
         self._axes_checked: set[str] = set()  # depth topics whose frame's axes were looked at (_depth_axes)
@@ -320,6 +321,7 @@ class Replay:
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
                     self._report_progress(log_ns)
+                self.whole_log_read = stopped_ns is None and not self._stop.is_set()
                 self._feed_localization(2**63 - 1)
                 for event in self.scheduler.flush():
                     self._dispatch(event)
