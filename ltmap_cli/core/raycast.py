@@ -960,7 +960,7 @@ def _depth_rays_pass(
         # max-range cut (computed for every pixel, its square root and division were a third of
         # pass 1 on an AMD Zen 3): a cut ray ends at max_range and marks nothing
         if n_near > 0:
-            for u in range(w):  # no branches (vectorized); a hit's key is its clear key + 1
+            for u in range(w):  # no branches (vectorized); a hit's key is its clear key + 1 (_dedupe_key)
                 px, py, pz = rx[u], ry[u], rz[u]
                 lx = f00 * px + f01 * py + f02 * pz + f03
                 ly = f10 * px + f11 * py + f12 * pz + f13
