@@ -5,7 +5,8 @@ each kernel of a depth frame's worker part alone, on the same captured inputs, s
 one kernel can be measured to a few per cent. It replays a scene's log once on the serial path
 (``bench_long_rays.py``'s scenes, simulated and cached there), captures every ``--every``-th
 depth frame's inputs as the replay hands them to ``LayeredMap.depth_voxels`` (the raw image, the
-pose, the rays, and the quiet blocks the map had published then), then times on them, best of
+pose, the rays, and what the projection read of the map then: O's table, its quiet quarters and
+still voxels, ``LayeredMap._map_seen``), then times on them, best of
 ``--rounds`` passes over all frames:
 
 - ``rays``: ``LayeredMap.depth_rays`` (``core.raycast.depth_image_rays``: raw pixels to one ray
@@ -14,13 +15,13 @@ pose, the rays, and the quiet blocks the map had published then), then times on 
   ``_depth_rays_pass`` with the later passes cut out;
 - ``range_image``: ``core.projective.depth_range_image`` (a part of ``projection``);
 - ``projection``: ``LayeredMap.depth_projection`` (the range image, the frame's box, the blocks'
-  miss masks, quiet quarters skipped);
+  miss masks, quiet quarters and still voxels left out);
 - ``tails``: ``LayeredMap.ray_voxels`` with the projective tail (the hits and the band's misses
   into the projection's masks).
 
 It also prints per frame: the rays, one per end voxel (hit, and clear: floor returns and rays cut
 at max_range), the box's blocks by class (``core.projective._classify``: culled, front, mixed),
-the blocks listed with misses and those whose quiet quarters the projection skipped.
+the blocks listed with misses and those whose quiet quarters or still voxels the projection left out.
 
 Run: python bench/bench_depth_parts.py [--scenes room,hall,office] [--every 10] [--rounds 3]
 """
@@ -56,8 +57,8 @@ def capture(scene: str, every: int) -> list[dict]:
         if seen[0] % every == 0:
             frames.append({"depth": np.array(depth), "k": (float(fx), float(fy), float(cx), float(cy)),
                            "T": np.array(T, dtype=np.float64), "max_range": float(max_range),
-                           "ends": ends.copy(), "kind": kind.copy(), "quiet": self._quiet_keys.copy(),
-                           "quarters": self._quiet_quarters.copy()})  # fmt: skip
+                           "ends": ends.copy(), "kind": kind.copy(),
+                           "seen": tuple(a.copy() for a in self._map_seen())})  # fmt: skip
         return real(self, depth, fx, fy, cx, cy, T, max_range, ends, kind)
 
     cfg = Config()
@@ -170,7 +171,7 @@ def time_parts(frames: list[dict], rounds: int) -> tuple[dict, dict]:
         c = time.perf_counter()
         depth_range_image(d, unit_mm, fx, fy, cx, cy, f["max_range"], float(sc.projective_band))
         spent["range_image"] += time.perf_counter() - c
-        lmap._quiet_keys, lmap._quiet_quarters = f["quiet"], f["quarters"]
+        lmap._map_seen = lambda seen=f["seen"]: seen
         c = time.perf_counter()
         proj = lmap.depth_projection(f["depth"], fx, fy, cx, cy, f["T"], f["max_range"], ends)
         spent["projection"] += time.perf_counter() - c

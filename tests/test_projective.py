@@ -40,6 +40,11 @@ W, H, F = 160, 120, 100.0
 CX, CY = (W - 1) / 2, (H - 1) / 2
 
 
+# projective_blocks' view of the map: none (no O table, no quiet quarters or still voxels)
+_NOT_SEEN = (np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int32), np.empty(0, dtype=np.uint8),
+             np.empty((0, 8), dtype=np.uint64))  # fmt: skip
+
+
 def _map(mode: str = "projective") -> LayeredMap:
     cfg = MapConfig()
     cfg.sensor.depth_integration = mode
@@ -184,89 +189,135 @@ def test_quiet_blocks_take_no_projective_miss():
     assert wall.sum() > 100 and (m.O.channel("stamp")[wall] != stamp[wall]).all()
 
 
-def test_the_workers_quiet_list_changes_nothing_however_old(monkeypatch):
-    """The projection skips the quarters the map thread last published as quiet (blocks all
-    quiet whole); the map thread fills the blocks where one of those is quiet no more
-    (``projective_fill``). A wall seen until its free space is quiet, a box appearing in that
-    space (its blocks un-quiet) and taken away: the same O (log-odds, stamps, block order) and D
-    with the list published after every frame, never published, replaced by every O block all
-    quiet or with quarters drawn at random (stale but where quiet), and fills happen only in the
-    last two."""
+def _still_bits(m: LayeredMap) -> tuple[np.ndarray, np.ndarray]:
+    """(O's still bits as bools (blocks, 512), the still voxels by the map's values: clamped
+    free, no ST or LT)."""
+    o, q = m.O, m._quiet_sync()
+    n = o.n_blocks
+    bits = np.unpackbits(q.still[:n].view(np.uint8), axis=1, bitorder="little").astype(bool)
+    off = np.arange(512)
+    local = np.stack([off >> 6, (off >> 3) & 7, off & 7], axis=1)
+    keys = (o.block_coords[:n, None, :].astype(np.int64) << 3) + local[None]
+    keys = keys.reshape(-1, 3)
+    lo_min = np.float32(m.cfg.sensor.clamp_min_logodds)
+    truth = (o.data["logodds"][:n].reshape(-1) == lo_min) & (m.D.get("st", keys) == 0) & (m.D.get("lt", keys) == 0)
+    return bits, truth.reshape(n, 512)
+
+
+def _slow_st_map() -> LayeredMap:
+    """A map whose ST rises in 0.4 s and falls in 60 s: a box seen for a few ticks gets ST and
+    LT, and keeps them after its voxels are clamped free again."""
+    cfg = MapConfig()
+    cfg.layers.st_rise_s, cfg.layers.st_fall_s = 0.4, 60.0
+    return LayeredMap(cfg)
+
+
+def test_still_bits_are_set_only_on_still_voxels():
+    """The map's still bits (``_QuietBlocks.still``: what the workers' projection leaves out)
+    are set only on voxels clamped free with no ST or LT, after every frame: a wall's free space
+    clamped (every still voxel has its bit), a box put in it for the tick rules to give ST and
+    LT and taken away (its voxels freed again with ST, no bit), LT seeded onto still voxels
+    (their bits cleared)."""
+    m = _slow_st_map()
+    box = _wall()
+    box[40:80, 60:100] = 1500
+    for t, depth in enumerate([_wall()] * 8 + [box] * 12 + [_wall()] * 16):
+        _integrate(m, depth)
+        if t % 2:
+            m.end_tick()
+        bits, truth = _still_bits(m)
+        assert not (bits & ~truth).any(), t
+        if t == 7:  # no ST or LT yet: every still voxel has its bit
+            assert truth.sum() > 10_000 and np.array_equal(bits, truth)
+    lo_min = np.float32(m.cfg.sensor.clamp_min_logodds)
+    freed = (m.O.data["logodds"][: m.O.n_blocks] == lo_min) & ~truth  # the box's voxels, free with ST or LT
+    assert freed.sum() > 100
+    assert bits.sum() > 0.95 * truth.sum()
+    # LT seeded onto still voxels: their bits go at the next frame's start
+    b, off = np.nonzero(bits)
+    pick = slice(0, None, 97)
+    keys = (m.O.block_coords[b[pick]].astype(np.int64) << 3) + np.stack([off[pick] >> 6, (off[pick] >> 3) & 7,
+                                                                         off[pick] & 7], axis=1)  # fmt: skip
+    m.seed_long_term(keys, 0.8)
+    bits, truth = _still_bits(m)
+    assert len(keys) > 50 and not (bits & ~truth).any()
+    assert not bits[b[pick], off[pick]].any()
+
+
+def _seen_as(how: str, real_seen, past: list, rng):
+    """A ``LayeredMap._map_seen`` that gives the map as it was three frames before (``past``:
+    what it gave after each frame), nothing, every quarter quiet and voxel still, or random
+    ones."""
+
+    def seen():
+        if how == "late":
+            return past[-3] if len(past) >= 3 else real_seen()
+        keys, vals, qquiet, still = real_seen()
+        if how == "never":
+            return keys[:0], vals[:0], qquiet[:0], still[:0]
+        if how == "all":
+            return keys, vals, np.full_like(qquiet, 255), np.full_like(still, ~np.uint64(0))
+        return (keys, vals, rng.integers(0, 256, qquiet.shape).astype(qquiet.dtype),
+                rng.integers(0, 2**63, still.shape, dtype=np.uint64) << np.uint64(1))  # fmt: skip
+
+    return seen
+
+
+def test_what_the_workers_read_of_the_map_changes_nothing_however_old(monkeypatch):
+    """The projection leaves out the quiet quarters and the still voxels it reads of the map
+    (``LayeredMap._map_seen``) while the map thread is on earlier frames; the map thread fills
+    in the voxels of those that are quiet or still no more (``projective_refill``). A wall seen
+    until its free space is quiet, a box appearing in that space (its blocks un-quiet, ST and LT
+    from the tick rules) and taken away: the same O (log-odds, stamps, block order) and D with
+    the map read as it is, read three frames late, not read, read as all quiet and still, and
+    read as random quarters and voxels; and fills happen only in the last three."""
     import ltmap_cli.core.layers as layers_mod
-    from ltmap_cli.core.grid import pack_blocks
 
     box = _wall()
     box[40:80, 60:100] = 1500
-    seq = [_wall()] * 8 + [box] * 10 + [_wall()] * 12
-    fills = {"n": 0, "skipped": 0}
-    real_fill, real_project = layers_mod.projective_fill, LayeredMap.depth_projection
+    seq = [_wall()] * 8 + [box] * 10 + [_wall()] * 16
+    fills = {"n": 0, "skipped": 0, "still": 0}
+    real_fill, real_project = layers_mod.projective_refill, LayeredMap.depth_projection
 
     def counting_fill(*a):
-        fills["n"] += 1
-        return real_fill(*a)
+        keys, masks, n = real_fill(*a)
+        fills["n"] += n
+        return keys, masks, n
 
     def counting_project(self, *a):
         p = real_project(self, *a)
-        fills["skipped"] += 0 if p.skipped is None else len(p.skipped)
+        if p.skipped is not None:
+            fills["skipped"] += len(p.skipped)
+            fills["still"] += int(np.unpackbits(p.skipped_still.view(np.uint8)).sum())
         return p
 
-    monkeypatch.setattr(layers_mod, "projective_fill", counting_fill)
+    monkeypatch.setattr(layers_mod, "projective_refill", counting_fill)
     monkeypatch.setattr(LayeredMap, "depth_projection", counting_project)
     out, counts = {}, {}
     rng = np.random.default_rng(17)
-    for how in ("fresh", "never", "stale", "quarters", "box"):
-        fills.update(n=0, skipped=0)
-        m = _map()
-        monkeypatch.setattr(layers_mod, "QUIET_LIST_WHOLE", 0 if how == "box" else 2)  # box: the frame's box only
-        if how == "never":
-            m._publish_quiet = lambda q, box: None
-        elif how in ("stale", "quarters"):
-            def every_block(q, box, m=m, how=how):
-                m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
-                quarters = rng.integers(1, 256, len(m._quiet_keys)) if how == "quarters" else 255
-                m._quiet_quarters = np.zeros(len(m._quiet_keys), dtype=np.uint8) + np.uint8(quarters)
-            m._publish_quiet = every_block
-        for depth in seq:
+    for how in ("fresh", "late", "never", "all", "random"):
+        fills.update(n=0, skipped=0, still=0)
+        m = _slow_st_map()
+        real_seen = m._map_seen
+        past: list[tuple] = []
+        if how != "fresh":
+            m._map_seen = _seen_as(how, real_seen, past, rng)
+        for t, depth in enumerate(seq):
             _integrate(m, depth)
+            if t % 3 == 2:
+                m.end_tick()
+            past.append(tuple(a.copy() for a in real_seen()))
         o, d = m.O, m.D
         out[how] = [o.block_coords[: o.n_blocks], o.channel("logodds"), o.channel("stamp"),
                     d.block_coords[: d.n_blocks], d.channel("st"), d.channel("lt")]
         counts[how] = dict(fills)
-    for how in ("never", "stale", "quarters", "box"):
+    assert out["fresh"][4].max() > 0 and out["fresh"][5].max() > 0  # (the box had ST and LT)
+    for how in ("late", "never", "all", "random"):
         assert all(np.array_equal(a, b) for a, b in zip(out[how], out["fresh"])), how
-    assert counts["fresh"]["skipped"] > 1000 and counts["box"]["skipped"] > 1000 and counts["never"]["skipped"] == 0
-    assert counts["stale"]["n"] > 10 and counts["quarters"]["n"] > 10, counts
-    assert counts["fresh"]["n"] == 0, counts  # (serial: the list is never stale)
-
-
-def test_a_quiet_list_of_one_box_is_made_whole_again():
-    """The list the workers skip is every quiet block while the map is small against a frame's
-    box, else those of the frame's box. A list of one small box (the camera close to a wall) is
-    listed again whole when the next frame's box calls for the whole list, though no quiet flag
-    changed: it was kept, and the workers then filled the quiet blocks outside that box until a
-    flag changed (45 % of the room bench log's projective miss bits)."""
-    from ltmap_cli.core.grid import BLOCK_BITS, pack_blocks
-
-    m = _map()
-    for _ in range(8):
-        _integrate(m, _wall())
-    q = m._quiet_sync()
-    idx = np.nonzero(q.qquiet[: m.O.n_blocks])[0]  # blocks with quiet quarters
-    every = np.sort(pack_blocks(m.O.block_coords[idx]))
-    assert len(every) > 10 and np.any(q.qquiet[idx] != 255) and np.any(q.qquiet[idx] == 255)
-    coords = m.O.block_coords[: m.O.n_blocks].astype(np.int64)
-    whole_box = np.concatenate([coords.min(axis=0) << BLOCK_BITS, (coords.max(axis=0) << BLOCK_BITS) + 7])
-    one = m.O.block_coords[idx[0]].astype(np.int64) << BLOCK_BITS
-    q.update(m, 0)  # (a flag changed: the next frame publishes again)
-    m._publish_quiet(q, np.concatenate([one, one + 7]))  # a box of one block: that block only
-    assert np.array_equal(m._quiet_keys, pack_blocks(m.O.block_coords[idx[:1]]))
-    assert np.array_equal(m._quiet_quarters, q.qquiet[idx[:1]])
-    m._publish_quiet(q, whole_box)  # no flag changed since
-    assert np.array_equal(m._quiet_keys, every)
-    by_key = dict(zip(pack_blocks(m.O.block_coords[idx]).tolist(), q.qquiet[idx].tolist()))
-    assert m._quiet_quarters.tolist() == [by_key[k] for k in every.tolist()]
-    m._publish_quiet(q, np.concatenate([one, one + 7]))  # a whole list stays: it holds the box's
-    assert np.array_equal(m._quiet_keys, every)
+    assert counts["fresh"]["skipped"] > 1000 and counts["fresh"]["still"] > 50_000, counts
+    assert counts["never"]["skipped"] == 0
+    assert counts["late"]["n"] > 5 and counts["all"]["n"] > 10 and counts["random"]["n"] > 10, counts
+    assert counts["fresh"]["n"] == 0, counts  # (serial: what it reads is never stale)
 
 
 def test_exact_mode_is_the_whole_ray_path():
@@ -329,25 +380,44 @@ def test_projection_listed_in_chunks_is_the_same(monkeypatch):
     chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     assert len(whole.keys) > 7 * 3
     assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
-    # and with every other block listed as quiet, or some of its quarters: the skipped blocks'
-    # list fills its chunks too, and a block's quiet quarters are left out of its mask
+    # and with every other block read as quiet, or some of its quarters, and voxels read as
+    # still: the skipped blocks' list fills its chunks too, and a block's quiet quarters and
+    # still voxels are left out of its mask
     full = dict(zip(whole.keys.tolist(), whole.masks))
-    m._quiet_keys = np.ascontiguousarray(whole.keys[::2])
-    m._quiet_quarters = np.resize(np.array([255, 0x0F, 0xF0, 0x5A, 0x81], dtype=np.uint8), len(m._quiet_keys))
+    _integrate(m, depth)
+    keys_t, vals_t, qquiet, still = m._map_seen()
+    rng = np.random.default_rng(5)
+    qquiet = np.zeros_like(qquiet)
+    listed = m.O.lookup(np.stack(_unpacked(whole.keys[::2]), axis=1) << 3)[0]
+    assert (listed >= 0).all()
+    qquiet[listed] = np.resize(np.array([255, 0x0F, 0xF0, 0x5A, 0x81, 0], dtype=np.uint8), len(listed))
+    still = rng.integers(0, 2**63, still.shape, dtype=np.uint64) & rng.integers(0, 2**63, still.shape, dtype=np.uint64)
+    m._map_seen = lambda: (keys_t, vals_t, qquiet, still)
     chunked = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
     monkeypatch.setattr(layers, "PROJECTIVE_CHUNK_BLOCKS", 1 << 14)
-    whole = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
-    assert len(whole.skipped) == len(m._quiet_keys) > 7 * 2
-    assert np.array_equal(whole.keys, chunked.keys) and np.array_equal(whole.masks, chunked.masks)
-    assert np.array_equal(whole.skipped, chunked.skipped)
-    assert np.array_equal(whole.skipped & 255, m._quiet_quarters)
-    quarters = dict(zip(m._quiet_keys.tolist(), m._quiet_quarters.tolist()))
-    got = dict(zip(whole.keys.tolist(), whole.masks))
-    for key, mask in full.items():  # by hand: the full mask without the quiet quarters' voxels
-        qq = quarters.get(key, 0)
-        want = [int(mask[w]) & ~sum(0xF << (y * 8 + (q & 1) * 4) for q in range(8) if qq >> q & 1 and q >> 2 == w >> 2
-                                     for y in range((q >> 1 & 1) * 4, (q >> 1 & 1) * 4 + 4)) for w in range(8)]
+    whole2 = m.depth_projection(depth, F, F, CX, CY, POSE, 8.0, ends)
+    assert len(whole2.skipped) > 7 * 2
+    assert np.array_equal(whole2.keys, chunked.keys) and np.array_equal(whole2.masks, chunked.masks)
+    assert np.array_equal(whole2.skipped, chunked.skipped)
+    assert np.array_equal(whole2.skipped_still, chunked.skipped_still)
+    got = dict(zip(whole2.keys.tolist(), whole2.masks))
+    for key, mask in full.items():  # by hand: the full mask without the quiet quarters' and still voxels
+        ob = m.O.lookup(np.stack(_unpacked(np.array([key])), axis=1) << 3)[0][0]
+        qq = int(qquiet[ob]) if ob >= 0 else 0
+        st = [int(x) for x in still[ob]] if ob >= 0 else [0] * 8
+        want = [int(mask[w]) & ~st[w] & ~sum(0xF << (y * 8 + (q & 1) * 4) for q in range(8)
+                                               if qq >> q & 1 and q >> 2 == w >> 2
+                                               for y in range((q >> 1 & 1) * 4, (q >> 1 & 1) * 4 + 4)) for w in range(8)]
         assert ([int(x) for x in got[key]] if key in got else [0] * 8) == want, (key, qq)
+    skipped = {int(b[0]) >> 8: (int(b[0]) & 255, [int(x) for x in w]) for b, w in zip(whole2.skipped, whole2.skipped_still)}
+    assert sum(qq == 255 for qq, _ in skipped.values()) > 3 and all(any(w) for qq, w in skipped.values() if qq == 0)
+
+
+def _unpacked(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``grid.pack_block``'s keys back to block coordinates."""
+    keys = np.asarray(keys, dtype=np.int64)
+    m = (1 << 21) - 1
+    return (keys >> 42) - (1 << 20), ((keys >> 21) & m) - (1 << 20), (keys & m) - (1 << 20)
 
 
 def _encoded(depth_mm: np.ndarray, float32: bool) -> np.ndarray:
@@ -468,9 +538,9 @@ def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
     assert np.float64(img[7, 7]) == reach
     box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
-    none, skipped = np.empty(0, dtype=np.int64), np.empty(64, dtype=np.int64)
+    skipped = np.empty((64, 2), dtype=np.int64)
     n, ns, nxt = projective_blocks(img, tmin, tmax, dil, f, f, 7.0, 7.0, Tinv, box, res, band, keys, masks, 0,
-                                   none, none.astype(np.uint8), skipped, 0)  # fmt: skip
+                                   *_NOT_SEEN, skipped, np.empty((64, 8), dtype=np.uint64), 0)  # fmt: skip
     assert nxt == -1 and ns == 0
     blocks = {int(keys[q]): masks[q] for q in range(n)}
     off = voxel_offset(0, 0, k0)
@@ -589,9 +659,9 @@ def test_rim_pixels_stand_for_rays_through_the_voxel(far_from, miss):
     img, tmin, tmax, dil = depth_range_image(depth, True, f, f, 20.0, 20.0, 8.0, band)
     box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
-    none, skipped = np.empty(0, dtype=np.int64), np.empty(64, dtype=np.int64)
-    n, _, _ = projective_blocks(img, tmin, tmax, dil, f, f, 20.0, 20.0, Tinv, box, res, band, keys, masks, 0, none,
-                                none.astype(np.uint8), skipped, 0)  # fmt: skip
+    skipped = np.empty((64, 2), dtype=np.int64)
+    n, _, _ = projective_blocks(img, tmin, tmax, dil, f, f, 20.0, 20.0, Tinv, box, res, band, keys, masks, 0,
+                                *_NOT_SEEN, skipped, np.empty((64, 8), dtype=np.uint64), 0)  # fmt: skip
     blocks = {int(keys[q]): masks[q] for q in range(n)}
     off = voxel_offset(0, 0, k0)
     word = blocks.get(pack_block(0, 0, k0 >> 3), np.zeros(8, dtype=np.uint64))[off >> 6]

@@ -18,7 +18,6 @@ F = max(S, LT) and its projection P are computed by ``ltmap_cli.core.projection`
 
 from __future__ import annotations
 
-import itertools
 import threading
 from dataclasses import dataclass
 from typing import NamedTuple
@@ -36,7 +35,6 @@ from .grid import (
     band_k_range,
     find_block,
     get_or_add_block,
-    pack_blocks,
     voxel_offset,
 )
 from .projective import (
@@ -47,9 +45,7 @@ from .projective import (
     depth_projection_blocks,
     ends_box,
     projective_blocks,
-    projective_fill,
-    quiet_keys_in_box,
-    stale_skips,
+    projective_refill,
     tail_masks,
 )
 from .raycast import (
@@ -86,6 +82,7 @@ from .raycast import (
     quiet_count,
     quiet_update,
     sparse_grown,
+    still_clear,
 )
 
 O_CHANNELS = {
@@ -624,30 +621,37 @@ def _sparse_bitmap(slots: int) -> tuple[np.ndarray, ...]:
             np.zeros(4 * slots, dtype=np.uint64))  # fmt: skip
 
 
-_QUIET_VERSIONS = itertools.count()
-QUIET_LIST_WHOLE = 2  # the workers get every quiet block while the map has at most this many times a frame's box
 _NO_KEYS = np.empty(0, dtype=np.int64)
 _NO_MASKS = np.empty((0, 8), dtype=np.uint64)
+_NO_VALS = np.empty(0, dtype=np.int32)
 
 
 class _QuietBlocks:
     """The record of quiet O blocks and quarters that ``LayeredMap.apply_voxels`` keeps: per O
     block and quarter (4 x 4 x 4, ``core.raycast.quarter_of``) the count of voxels clamped free
     (``nfree`` (B, 8)) and per block its quiet quarters (``qquiet``, a bit each; the block is
-    quiet, and the workers' projection skips it, when all eight are: ``quiet``)."""
+    quiet, and the workers' projection skips it, when all eight are: ``quiet``); and per block
+    its still voxels (``still`` (B, 8) uint64, ``voxel_offset`` bits), the workers' projection's
+    to leave out: a bit is set only while its voxel is clamped free with no ST or LT (the kernels
+    set and clear it as the voxel enters and leaves ``lo_min``; LT seeded into a free voxel, or a
+    D replaced, clears it in ``revalidate``; the tick rules give ST and LT only to voxels above
+    log-odds 0), so a miss there changes nothing. A voxel whose ST and LT the tick rules bring
+    back to 0 gets its bit when it next enters ``lo_min``."""
 
     NFREE, FLAG = np.int32, np.uint8  # the dtypes of ``nfree`` and ``qquiet`` (the kernels compile for them)
 
     def __init__(self, lmap: LayeredMap, lo_min: float):
-        o = lmap.O
+        o, d = lmap.O, lmap.D
         self.o, self.lo_min, self.active = o, lo_min, lmap.quiet_blocks
         self.tick = lmap.tick_index  # the tick whose ST and LT the flags follow (after_tick)
         self.nfree = np.zeros((o.max_blocks, 8), dtype=self.NFREE)
         self.qquiet = np.zeros(o.max_blocks, dtype=self.FLAG)
+        self.still = np.zeros((o.max_blocks, 8), dtype=np.uint64)
         self.changed = np.empty(1 << 12, dtype=np.int64)
         self.ch_meta = np.zeros(1, dtype=np.int64)
         n = o.n_blocks
-        quiet_count(o.data["logodds"], n, lo_min, self.nfree)
+        quiet_count(o.data["logodds"], n, lo_min, self.nfree, self.still, o.block_coords, d.table_keys, d.table_vals,
+                    d.data["st"], d.data["lt"])  # fmt: skip
         self.update(lmap, n, np.arange(n, dtype=np.int64))
 
     def fit(self, max_blocks: int) -> None:
@@ -655,6 +659,7 @@ class _QuietBlocks:
             extra = max_blocks - len(self.nfree)
             self.nfree = np.concatenate([self.nfree, np.zeros((extra, 8), dtype=self.nfree.dtype)])
             self.qquiet = np.concatenate([self.qquiet, np.zeros(extra, dtype=self.qquiet.dtype)])
+            self.still = np.concatenate([self.still, np.zeros((extra, 8), dtype=self.still.dtype)])
 
     @property
     def quiet(self) -> np.ndarray:
@@ -668,11 +673,16 @@ class _QuietBlocks:
         quiet_update(self.changed if blocks is None else blocks, n, self.nfree, self.qquiet, o.block_coords,
                      d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
         self.d, self.d_blocks = d, d.n_blocks
-        self.version = next(_QUIET_VERSIONS)  # (the flags may have changed: publish them again)
 
     def revalidate(self, lmap: LayeredMap) -> None:
         """D gained blocks (the tick rules' obstacles, long-term seeds) or was replaced, or LT
-        was seeded: quiet quarters that now have ST or LT are quiet no more."""
+        was seeded: quiet quarters that now have ST or LT are quiet no more, nor are such voxels
+        still (all of D's blocks after a seed or a new D, else its new blocks: the tick rules'
+        obstacles are above log-odds 0, not still already, but it costs nothing)."""
+        d, o = lmap.D, lmap.O
+        first = self.d_blocks if self.d is d and self.d_blocks >= 0 else 0
+        still_clear(first, d.n_blocks, d.block_coords, d.data["st"], d.data["lt"], o.table_keys, o.table_vals,
+                    self.still)  # fmt: skip
         qb = np.nonzero(self.qquiet[: lmap.O.n_blocks])[0].astype(np.int64)
         self.update(lmap, len(qb), qb)
 
@@ -681,9 +691,8 @@ class _QuietBlocks:
         quiet (the D block of something seen once stays: the office bench scene's person left 40
         such blocks in each frame's frustum, 22 % of the masks' miss bits, never quiet)."""
         d = lmap.D
-        if quiet_after_tick(lmap.O.n_blocks, self.nfree, self.qquiet, lmap.O.block_coords, d.table_keys, d.table_vals,
-                            d.data["st"], d.data["lt"]):  # fmt: skip
-            self.version = next(_QUIET_VERSIONS)
+        quiet_after_tick(lmap.O.n_blocks, self.nfree, self.qquiet, lmap.O.block_coords, d.table_keys, d.table_vals,
+                         d.data["st"], d.data["lt"])  # fmt: skip
         self.tick = lmap.tick_index
 
 
@@ -695,14 +704,15 @@ class FrameMasks(NamedTuple):
     packed coordinates and its voxels' bits (``grid.voxel_offset`` order), the misses, and the
     hits in masks of their own. A depth frame's projection (``LayeredMap.depth_projection``,
     ``core.projective.projective_blocks``) also gives its box, the blocks whose quiet quarters
-    it skipped, and what ``projective_fill`` needs to make theirs; whole rays (``ray_voxels``:
+    it skipped, and what ``projective_refill`` needs to fill them in; whole rays (``ray_voxels``:
     scans, clouds, exact depth) give keys, masks and hits only."""
 
     keys: np.ndarray  # (n,) int64, ascending
     masks: np.ndarray  # (n, 8) uint64
     box: np.ndarray | None = None  # (6,) int64: the frame's voxel box (ends_box)
-    skipped: np.ndarray | None = None  # (m,) int64: block numbers in the box * 256 + quarters left as quiet
-    fill: tuple | None = None  # projective_fill's arguments before ``blocks``
+    skipped: np.ndarray | None = None  # (m, 2) int64: block numbers in the box * 256 + quarters left as quiet, O block
+    skipped_still: np.ndarray | None = None  # (m, 8) uint64: those blocks' voxels left as still
+    fill: tuple | None = None  # projective_refill's first arguments
     hits: tuple | None = None  # (keys, masks): the frame's hits as block masks (core.projective.tail_masks)
 
 
@@ -727,11 +737,6 @@ class LayeredMap:
 
     quiet_blocks = True  # misses in quiet blocks are skipped (see apply_voxels); False: every miss updates
     _quiet: _QuietBlocks | None = None
-    # the blocks with quiet quarters and those quarters as last published for the workers (_publish_quiet)
-    _quiet_keys: np.ndarray = _NO_KEYS
-    _quiet_quarters: np.ndarray = _NO_QUARTERS
-    _quiet_keys_version = -1
-    _quiet_keys_box: np.ndarray | None = None  # the box they were listed for; None: every quiet block
 
     def __init__(self, cfg: MapConfig | None = None, static: StaticGrid | None = None):
         self.cfg = cfg or MapConfig()
@@ -877,26 +882,37 @@ class LayeredMap:
         R, t = T[:3, :3], T[:3, 3]
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
         band = float(self.cfg.sensor.projective_band)
-        quiet, quarters = (self._quiet_keys, self._quiet_quarters) if self.quiet_blocks else (_NO_KEYS, _NO_QUARTERS)
-        keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box = depth_projection_blocks(
+        seen = self._map_seen()
+        keys, masks, n, skipped, sstill, ns, nxt, reach, tmin, tmax, dil, box = depth_projection_blocks(
             depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(t), Tinv,
-            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS, quiet, quarters,
+            float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS, *seen,
         )  # fmt: skip
         while nxt >= 0:  # the arrays are full: twice the room, and on from the block it stopped at
             if n == len(keys):
                 keys = np.concatenate([keys[:n], np.empty(n, dtype=np.int64)])
                 masks = np.concatenate([masks[:n], np.empty((n, 8), dtype=np.uint64)])
             if ns == len(skipped):
-                skipped = np.concatenate([skipped[:ns], np.empty(ns, dtype=np.int64)])
+                skipped = np.concatenate([skipped[:ns], np.empty((ns, 2), dtype=np.int64)])
+                sstill = np.concatenate([sstill[:ns], np.empty((ns, 8), dtype=np.uint64)])
             m, ns, nxt = projective_blocks(reach, tmin, tmax, dil, float(fx), float(fy), float(cx), float(cy), Tinv,
-                                           box, self.resolution, band, keys[n:], masks[n:], nxt, quiet, quarters, skipped,
-                                           ns)  # fmt: skip
+                                           box, self.resolution, band, keys[n:], masks[n:], nxt, *seen, skipped,
+                                           sstill, ns)  # fmt: skip
             n += m
-        keys, masks, skipped = keys[:n], masks[:n], skipped[:ns]
+        keys, masks, skipped, sstill = keys[:n], masks[:n], skipped[:ns], sstill[:ns]
         if not len(skipped):
             return FrameMasks(keys, masks, box)
-        return FrameMasks(keys, masks, box, skipped, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
-                                                      float(cy), Tinv, box, self.resolution, band))  # fmt: skip
+        return FrameMasks(keys, masks, box, skipped, sstill, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
+                                                              float(cy), Tinv, box, self.resolution, band))  # fmt: skip
+
+    def _map_seen(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """What the workers' projection reads of the map to leave out the misses that change
+        nothing (``projective_blocks``): O's hash table, the quiet quarters and still voxels by
+        O block, the arrays as they are now (the map thread goes on writing them; the map thread
+        checks what was read before it applies the frame); empty ones without quiet blocks."""
+        q = self._quiet
+        if not self.quiet_blocks or q is None or q.o is not self.O:
+            return _NO_KEYS, _NO_VALS, _NO_QUARTERS, _NO_MASKS
+        return self.O.table_keys, self.O.table_vals, q.qquiet, q.still
 
     def projective_tail(self) -> float:
         """How far before its end a depth ray is walked in projective mode (m): the band and an
@@ -1048,69 +1064,28 @@ class LayeredMap:
         self.frame_id += 1
         counters = np.zeros(2, dtype=np.int64)
         q.ch_meta[0] = 0
+        if masks is not None and masks.skipped is not None:  # blocks a worker took as quiet or still: checked
+            masks = self._fill_stale(q, masks)  # against the map as the frame begins, before its hits
         if masks is not None and masks.hits is not None:  # the frame's hits as block masks
             self._apply_masks(q, *masks.hits, counters, hit=True)
         if len(hits) or len(misses):  # (none: nothing to do, and a first run's projective16 warm-up
             self._apply(q, hits, misses, 0, counters)  # group leaves this kernel to the lists group)
-        if masks is not None and masks.skipped is not None:  # blocks a worker took as quiet
-            masks = self._fill_stale(q, masks)
         if masks is not None:  # the misses (the projection's and the rays'), block by block
             self._apply_masks(q, masks.keys, masks.masks, counters)
         if self.quiet_blocks and q.ch_meta[0]:
             q.update(self, int(q.ch_meta[0]))
-        if self.quiet_blocks and masks is not None and masks.box is not None:  # a depth frame's projection
-            self._publish_quiet(q, masks.box)
         return FrameResult(rays=rays, hits=int(counters[0]), misses=int(counters[1]))
 
     def _fill_stale(self, q: _QuietBlocks, projection: FrameMasks) -> FrameMasks:
-        """The projection with the masks of the blocks its worker skipped quarters of as quiet
-        where one of those is quiet no more (the worker saw an older list; ``_publish_quiet``),
-        each block made whole again, in key order: what it would have been with the map as the
-        frame begins."""
+        """The projection with the voxels its worker left out as quiet or still that are not
+        now (the worker read the map as it was some frames before: ``_map_seen``) filled in, in
+        key order: what it would have been with the map as the frame begins
+        (``projective_refill``)."""
         o = self.O
-        stale = stale_skips(projection.skipped, projection.box, o.table_keys, o.table_vals, q.qquiet)
-        if not len(stale):
-            return projection
-        keys = np.empty(len(stale), dtype=np.int64)
-        masks = np.empty((len(stale), 8), dtype=np.uint64)
-        n = projective_fill(*projection.fill, stale, keys, masks)
-        if not n:
-            return projection
-        keys = np.concatenate([projection.keys, keys[:n]])
-        masks = np.concatenate([projection.masks, masks[:n]])
-        order = np.argsort(keys, kind="stable")
-        keys, masks = keys[order], masks[order]
-        # a block skipped as quiet may hold tail misses already (depth_voxels): one entry, the
-        # union of its bits (numpy: a rare path, the threads' only, and no kernel to compile)
-        first = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
-        return FrameMasks(keys[first], np.bitwise_or.reduceat(masks, first, axis=0), projection.box)
-
-    def _publish_quiet(self, q: _QuietBlocks, box: np.ndarray) -> None:
-        """For the workers' projection to skip (``depth_projection``): the packed keys, ascending,
-        of the O blocks with quiet quarters, and those quarters (a byte each), when their flags
-        changed. New arrays each time (a worker may hold the old ones). All of them while the map
-        has fewer blocks than twice this depth frame's box (a sort of a few thousand keys); beyond, those of the box only (a lookup per block of the
-        box, whatever the map's size: a 100 m floor holds 10^5 blocks; the next frames' boxes are
-        about the same, and a block left out is only not skipped), also when the box moved. A
-        list of one box's blocks is made again when the next frame takes the whole list, though
-        no flag changed (kept, it left out the quiet blocks outside that one box until a flag
-        changed: on the room bench log the workers filled 108 quiet blocks a frame, 45 % of the
-        masks' miss bits; the projection 0.935x of the time without them)."""
-        o = self.O
-        b = box >> BLOCK_BITS
-        in_box = int(np.prod(b[3:] - b[:3] + 1))
-        whole = o.n_blocks <= QUIET_LIST_WHOLE * in_box
-        listed = self._quiet_keys_box
-        if q.version == self._quiet_keys_version and (listed is None or (not whole and np.array_equal(box, listed))):
-            return
-        if whole:
-            idx = np.nonzero(q.qquiet[: o.n_blocks])[0]
-            keys = pack_blocks(o.block_coords[idx])
-            order = np.argsort(keys)
-            self._quiet_keys, self._quiet_quarters = keys[order], q.qquiet[idx[order]]
-        else:
-            self._quiet_keys, self._quiet_quarters = quiet_keys_in_box(box, o.table_keys, o.table_vals, q.qquiet)
-        self._quiet_keys_version, self._quiet_keys_box = q.version, None if whole else box
+        keys, masks, _ = projective_refill(*projection.fill, projection.skipped, projection.skipped_still,
+                                           o.block_coords, o.n_blocks, q.qquiet, q.still, projection.keys,
+                                           projection.masks)  # fmt: skip
+        return projection._replace(keys=keys, masks=masks)
 
     def _apply(self, q: _QuietBlocks, hits: np.ndarray, misses: np.ndarray, phase: int, counters: np.ndarray) -> None:
         """``apply_voxels_kernel`` from ``phase`` (0: hits then misses; 1: misses only), growing
@@ -1125,7 +1100,7 @@ class LayeredMap:
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds,
-                phase, start, counters, q.nfree, q.qquiet, use_quiet, q.changed, q.ch_meta,
+                phase, start, counters, q.nfree, q.qquiet, q.still, use_quiet, q.changed, q.ch_meta,
                 self.D.table_keys, self.D.table_vals, self.D.data["st"], self.D.data["lt"],
             )  # fmt: skip
             if status == STATUS_DONE:
@@ -1145,7 +1120,7 @@ class LayeredMap:
                 o.table_keys, o.table_vals, o.block_coords, o.meta, o.data["logodds"], o.data["stamp"], o.data["hit"],
                 self.frame_id, self._tick_first, self._tb_block, self._tb_off, self._tb_meta,
                 sc.hit_logodds, sc.miss_logodds, sc.clamp_min_logodds, sc.clamp_max_logodds, counters,
-                q.nfree, q.qquiet, self.quiet_blocks, q.changed, q.ch_meta,
+                q.nfree, q.qquiet, q.still, self.quiet_blocks, q.changed, q.ch_meta,
                 self.D.table_keys, self.D.table_vals, self.D.data["st"], self.D.data["lt"],
             )  # fmt: skip
             if status == STATUS_DONE:

@@ -58,7 +58,7 @@ from .raycast import (
 )
 
 # a block whose quiet quarters a worker skipped is listed as (its number in the box << SKIP_SHIFT)
-# | those quarters (projective_blocks, stale_skips)
+# | those quarters (projective_blocks, projective_refill)
 SKIP_SHIFT = 8
 # the exact rays' tail reaches this many voxels beyond the band, so the two parts overlap
 TAIL_OVERLAP_VOXELS = 2
@@ -325,10 +325,11 @@ def _fill_scratch():
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes, e, mask,
-                fs, ks, qskip):  # fmt: skip
+                fs, ks, qskip, still):  # fmt: skip
     """The miss bits of a FRONT or MIXED block into ``mask`` (8,), but for its quarters in
-    ``qskip`` (a bit each, ``core.raycast.quarter_of``'s numbering: quiet ones); True when it
-    has any. ``fs``, ``ks``: ``_fill_scratch``."""
+    ``qskip`` (a bit each, ``core.raycast.quarter_of``'s numbering: quiet ones) and its voxels
+    in ``still`` (8 words, ``mask``'s bits: still ones, not tested); True when it has any.
+    ``fs``, ``ks``: ``_fill_scratch``."""
     ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2 = e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8]
     full = ~np.uint64(0)
     Q = BLOCK // 2
@@ -336,9 +337,11 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
     vpix, vcode = ks[0], ks[1]
     flat = reach.reshape(-1)
     if cls == FRONT:  # every voxel's centre is nearer than its pixel's range - band
+        anyb = np.uint64(0)
         for t in range(8):  # (word t: voxels x = t; its quarters' bits are those of x half t >> 2)
-            mask[t] = full & QUARTER_KEEP[(qskip >> ((t >> 2) << 2)) & 15]
-        return qskip != QUIET_ALL
+            mask[t] = full & QUARTER_KEEP[(qskip >> ((t >> 2) << 2)) & 15] & ~still[t]
+            anyb |= mask[t]
+        return anyb != 0
     for t in range(8):
         mask[t] = 0
     found = False
@@ -355,12 +358,20 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
         if qcls == CULLED:
             continue
         if qcls == FRONT:  # all its 64 voxels: word a of the mask holds voxels (a, c, e) as bits c * 8 + e
-            found = True
             pat = np.uint64(0)
             for c in range(sc, sc + Q):
                 pat |= np.uint64((1 << Q) - 1) << np.uint64(c * BLOCK + se)
             for a in range(sa, sa + Q):
-                mask[a] |= pat
+                mask[a] |= pat & ~still[a]
+                found |= (pat & ~still[a]) != 0
+            continue
+        # its still voxels, bit t as t below counts them (x, y, z 2 bits each): skipped whole
+        # when all are, else left out of the tests (a room frame's voxel tests 0.74x)
+        sq = np.uint64(0)
+        for a in range(Q):
+            for c in range(Q):
+                sq |= ((still[sa + a] >> np.uint64((sc + c) * BLOCK + se)) & np.uint64(15)) << np.uint64(a * 16 + c * 4)
+        if sq == full:
             continue
         qlo2 = qlo * qlo if qlo > 0.0 else -1.0  # (a miss needs reach > 0)
         qhi2 = qhi * qhi if qhi > 0.0 else -1.0
@@ -380,7 +391,8 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
             vv[t] = vf
             viz[t] = iz
             vpix[t] = (np.int64(np.int32(vf)) * w + np.int32(uf)) if inside else -1  # (through int32: see depth_image_rays)
-            vcode[t] = 0 if (z <= 0.0) | (d2 >= qhi2) else (1 if d2 < qlo2 else 2)
+            sb = (sq >> np.uint64(t)) & np.uint64(1)
+            vcode[t] = 0 if (z <= 0.0) | (d2 >= qhi2) | (sb != 0) else (1 if d2 < qlo2 else 2)
         for t in range(64):
             code = vcode[t]
             if code == 0:
@@ -447,13 +459,13 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, start,
-                      quiet_keys, quiet_quarters, skipped, n_skipped):  # fmt: skip
+                      o_keys, o_vals, qquiet, still, skipped, skipped_still, n_skipped):  # fmt: skip
     """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive)
     that the projection makes misses, block by block: the block's packed coordinates
     (``grid.pack_block``) into ``keys`` and its voxels' bits (``grid.voxel_offset`` order) into
     ``masks`` (n, 8), from block number ``start`` of the box (x, y, z order); returns (n, the
     blocks skipped so far, the block to go on from when ``keys`` or ``skipped`` is full, -1 when
-    done). Reads no map state (a worker thread's part).
+    done). A worker thread's part.
 
     ``reach``, ``tmin``, ``tmax``, ``dil``: ``depth_range_image``; ``Tinv`` (3, 4): fixed frame ->
     optical frame. A voxel is a miss when its centre (z > 0 in the optical frame) is nearer than
@@ -463,12 +475,16 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     4 x 4 x 4 quarters, that surely hold no miss are skipped and those that surely are all misses
     are taken whole (``_classify``), without testing their voxels.
 
-    ``quiet_keys``: sorted packed keys of O blocks with quiet quarters (``LayeredMap.apply_voxels``:
-    a miss there changes nothing) when the map thread last published them, ``quiet_quarters``
-    theirs (a byte, a bit a quarter); the quiet quarters of a block in the frustum are not
-    filled (a block all quiet not at all): its number in the box and those quarters
-    (``SKIP_SHIFT``) go to ``skipped`` (from ``n_skipped`` on), for the map thread to fill the block if they are
-    quiet no more (``stale_skips``, ``projective_fill``). The result is the same either way."""
+    Where a miss changes nothing it is not made: ``o_keys``, ``o_vals`` (O's hash table),
+    ``qquiet`` and ``still`` (``layers._QuietBlocks``: an O block's quiet quarters and still
+    voxels) are the map thread's, read as they are while it works on earlier frames (empty: none
+    read). A block's quiet quarters are not filled (a block all quiet not at all) nor are its
+    still voxels tested; its number in the box and those quarters (``SKIP_SHIFT``) go to
+    ``skipped`` with the O block read (``skipped[t, 1]``) and the still bits read to
+    ``skipped_still`` (from ``n_skipped`` on), for the map
+    thread to fill the block whole if one of them is quiet or still no more when the frame's
+    turn comes (``projective_refill``). So what was read, however old, changes
+    only the work, not the map."""
     h, w = reach.shape
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
     bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
@@ -480,8 +496,12 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     fs, ks = _fill_scratch()
     n = 0
     cap = keys.shape[0]
-    nq = quiet_keys.shape[0]
-    qi = 0
+    # (the map thread may swap O's table for a larger one between reading keys and values: a
+    # block is looked up only in a table whose halves match, and its index used only below both
+    # arrays' sizes)
+    lookup = o_keys.shape[0] > 0 and o_keys.shape[0] == o_vals.shape[0]
+    n_known = min(qquiet.shape[0], still.shape[0])
+    words = np.zeros(8, dtype=np.uint64)
     for b in range(start, nblocks):
         if n == cap or n_skipped == skipped.shape[0]:
             return n, n_skipped, b
@@ -492,65 +512,141 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                                           planes, e)  # fmt: skip
         if cls == CULLED:
             continue
-        key = pack_block(bi, bj, bk)
-        while qi < nq and quiet_keys[qi] < key:  # (the blocks come in key order: a merge walk, no
-            qi += 1  # search; np.searchsorted cost the first run 0.9 s of compiling)
         qskip = np.int64(0)
-        if qi < nq and quiet_keys[qi] == key:
-            qskip = np.int64(quiet_quarters[qi])
-            skipped[n_skipped] = (b << SKIP_SHIFT) | qskip
-            n_skipped += 1
-            if qskip == QUIET_ALL:
-                continue
-        keys[n] = key
+        anyw = np.uint64(0)
+        ob = find_block(o_keys, o_vals, bi, bj, bk) if lookup else -1
+        if 0 <= ob < n_known:
+            qskip = np.int64(qquiet[ob])
+            for t in range(8):
+                words[t] = still[ob, t]
+                anyw |= words[t]
+            if qskip != 0 or anyw != 0:
+                skipped[n_skipped, 0] = (b << SKIP_SHIFT) | qskip
+                skipped[n_skipped, 1] = ob
+                for t in range(8):
+                    skipped_still[n_skipped, t] = words[t]
+                n_skipped += 1
+                if qskip == QUIET_ALL:
+                    continue
+        if anyw == 0:
+            for t in range(8):
+                words[t] = 0
+        keys[n] = pack_block(bi, bj, bk)
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
-                       e, masks[n], fs, ks, qskip):  # fmt: skip
+                       e, masks[n], fs, ks, qskip, words):  # fmt: skip
             n += 1
     return n, n_skipped, -1
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def projective_fill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, blocks, keys, masks):
-    """The masks of the box's blocks numbered ``blocks`` (``projective_blocks``' ``skipped``), as
-    ``projective_blocks`` makes them: keys into ``keys``, bits into ``masks``, block numbers of
-    those with misses into ``blocks``' head; returns how many have misses."""
+def projective_refill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, skipped, skipped_still, o_coords,
+                      n_blocks, qquiet, still, keys, masks):  # fmt: skip
+    """The projection's ``keys``, ``masks`` (``projective_blocks``) with the voxels its worker
+    left out that are not quiet or still now filled in: of each block in ``skipped`` /
+    ``skipped_still`` (its quarters left as quiet, its voxels left as still), the voxels neither
+    in a quiet quarter (``qquiet``) nor still (``still``) by O's state now are tested as
+    ``projective_blocks`` tests them, and their misses set in the block's row (in place when
+    the blocks had rows, else in new arrays with rows made in key order). The worker's O block
+    is the block when ``o_coords`` (O's block coordinates, ``n_blocks`` of them) say so (a map
+    loaded since: not; no hash lookup). Returns (keys, masks, the blocks that had such voxels).
+    Reads the map: the thread that owns it, before the frame's updates."""
     h, w = reach.shape
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
-    bj1, bk1 = box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
-    nbj, nbk = bj1 - bj0 + 1, bk1 - bk0 + 1
+    nbj, nbk = (box[4] >> BLOCK_BITS) - bj0 + 1, (box[5] >> BLOCK_BITS) - bk0 + 1
+    m = skipped.shape[0]
+    add_keys = np.empty(m, dtype=np.int64)
+    add_masks = np.empty((m, 8), dtype=np.uint64)
+    n_add = 0
+    n_stale = 0
     far, planes, e = _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band)
     fs, ks = _fill_scratch()
-    n = 0
-    for t in range(blocks.shape[0]):
-        b = blocks[t]
-        bi = bi0 + b // (nbj * nbk)
-        bj = bj0 + (b // nbk) % nbj
-        bk = bk0 + b % nbk
+    keep = np.empty(8, dtype=np.uint64)  # the voxels not to test: all but those to fill in
+    out = np.empty(8, dtype=np.uint64)
+    for t in range(m):
+        b, qs, ob = skipped[t, 0] >> SKIP_SHIFT, skipped[t, 0] & QUIET_ALL, skipped[t, 1]
+        bi, bj, bk = bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk
+        if not (0 <= ob < n_blocks and o_coords[ob, 0] == bi and o_coords[ob, 1] == bj and o_coords[ob, 2] == bk):
+            ob = -1
+        qq = np.int64(qquiet[ob]) if ob >= 0 else np.int64(0)
+        anyb = np.uint64(0)
+        for wd in range(8):
+            sh = (wd >> 2) << 2
+            left = ~QUARTER_KEEP[(qs >> sh) & 15] | skipped_still[t, wd]  # what the worker left out
+            fine = ~QUARTER_KEEP[(qq >> sh) & 15] | (still[ob, wd] if ob >= 0 else np.uint64(0))  # may be now
+            keep[wd] = ~(left & ~fine)
+            anyb |= ~keep[wd]
+        if anyb == 0:
+            continue
+        n_stale += 1
         cls, px0, py0, pz0 = _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far,
                                           planes, e)  # fmt: skip
         if cls == CULLED or far <= 0.0:
             continue
-        keys[n] = pack_block(bi, bj, bk)
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
-                       e, masks[n], fs, ks, np.int64(0)):  # fmt: skip
-            blocks[n] = b
-            n += 1
-    return n
+                       e, out, fs, ks, np.int64(0), keep):  # fmt: skip
+            add_keys[n_add] = pack_block(bi, bj, bk)
+            for wd in range(8):
+                add_masks[n_add, wd] = out[wd]
+            n_add += 1
+    if n_add == 0:
+        return keys, masks, n_stale
+    n = keys.shape[0]
+    rows = np.empty(n_add, dtype=np.int64)  # each block's row, by bisection (-1: none)
+    missing = 0
+    for j in range(n_add):
+        lo, hi = 0, n
+        while lo < hi:
+            mid = (lo + hi) >> 1
+            if keys[mid] < add_keys[j]:
+                lo = mid + 1
+            else:
+                hi = mid
+        rows[j] = lo if lo < n and keys[lo] == add_keys[j] else -1
+        missing += rows[j] < 0
+    if missing == 0:
+        for j in range(n_add):
+            for wd in range(8):
+                masks[rows[j], wd] |= add_masks[j, wd]
+        return keys, masks, n_stale
+    # merged into the rows, in key order (the blocks came in the box's order: pack_block's)
+    new_keys = np.empty(n + n_add, dtype=np.int64)
+    new_masks = np.empty((n + n_add, 8), dtype=np.uint64)
+    i, j, r = 0, 0, 0
+    while i < n or j < n_add:
+        if j == n_add or (i < n and keys[i] < add_keys[j]):
+            new_keys[r] = keys[i]
+            for wd in range(8):
+                new_masks[r, wd] = masks[i, wd]
+            i += 1
+        elif i == n or add_keys[j] < keys[i]:
+            new_keys[r] = add_keys[j]
+            for wd in range(8):
+                new_masks[r, wd] = add_masks[j, wd]
+            j += 1
+        else:
+            new_keys[r] = keys[i]
+            for wd in range(8):
+                new_masks[r, wd] = masks[i, wd] | add_masks[j, wd]
+            i += 1
+            j += 1
+        r += 1
+    return new_keys[:r], new_masks[:r], n_stale
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_range, band, ends, res, chunk,
-                            quiet_keys, quiet_quarters):  # fmt: skip
+                            o_keys, o_vals, qquiet, still):  # fmt: skip
     """``depth_range_image``, the frame's box (``ends_box``) and ``projective_blocks`` in one call
     (a worker thread then takes the GIL once for them instead of three times, with numpy in
-    between): (keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box): ``n`` blocks with
-    misses in ``keys``, ``masks``, ``ns`` blocks with quarters skipped as quiet (``quiet_keys``,
-    ``quiet_quarters``) in ``skipped``, and the range image, tiles and box (``projective_fill`` needs them). The arrays
-    hold ``chunk`` blocks (memory follows the frustum's free space, not the box: a box at 0.01 m
-    holds millions of blocks); when they are full, ``nxt`` >= 0 is the block to go on from with
-    ``projective_blocks`` in larger arrays (``LayeredMap.depth_projection``; in Python: the growth
-    loop here cost a first run about 1.5 s of compiling). ``origin``: the camera's position;
-    ``Tinv`` (3, 4): fixed frame -> optical frame."""
+    between): (keys, masks, n, skipped, skipped_still, ns, nxt, reach, tmin, tmax, dil, box):
+    ``n`` blocks with misses in ``keys``, ``masks``, ``ns`` blocks with quarters skipped as quiet
+    or voxels as still (``o_keys``, ``o_vals``, ``qquiet``, ``still``: ``projective_blocks``) in
+    ``skipped``, ``skipped_still``, and the range image, tiles and box (``projective_refill`` needs
+    them). The arrays hold ``chunk`` blocks (memory follows the frustum's free space, not the box:
+    a box at 0.01 m holds millions of blocks); when they are full, ``nxt`` >= 0 is the block to go
+    on from with ``projective_blocks`` in larger arrays (``LayeredMap.depth_projection``; in
+    Python: the growth loop here cost a first run about 1.5 s of compiling). ``origin``: the
+    camera's position; ``Tinv`` (3, 4): fixed frame -> optical frame."""
     reach, tmin, tmax, dil = depth_range_image(depth, unit_mm, fx, fy, cx, cy, max_range, band)
     box = ends_box(origin, ends, 1.0 / res)
     nb = np.int64(1)
@@ -559,11 +655,12 @@ def depth_projection_blocks(depth, unit_mm, fx, fy, cx, cy, origin, Tinv, max_ra
     cap = min(nb, chunk)
     keys = np.empty(cap, dtype=np.int64)
     masks = np.empty((cap, 8), dtype=np.uint64)
-    skipped = np.empty(cap, dtype=np.int64)
+    skipped = np.empty((cap, 2), dtype=np.int64)
+    skipped_still = np.empty((cap, 8), dtype=np.uint64)
     zero = np.int64(0)  # (not a literal 0: numba would compile projective_blocks twice, 1.2 s)
     n, ns, nxt = projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, zero,
-                                   quiet_keys, quiet_quarters, skipped, zero)  # fmt: skip
-    return keys, masks, n, skipped, ns, nxt, reach, tmin, tmax, dil, box
+                                   o_keys, o_vals, qquiet, still, skipped, skipped_still, zero)  # fmt: skip
+    return keys, masks, n, skipped, skipped_still, ns, nxt, reach, tmin, tmax, dil, box
 
 
 # a frame box of more blocks keeps its hits and tail misses as lists (tail_masks' table of the
@@ -836,45 +933,3 @@ def tail_masks(origin, ends, kind, inv_res, res, tail, pkeys, pmasks, box, max_b
     okeys, omasks = _rows_in_key_order(slot, keys, masks, m, np.int64(0))
     hkeys, hmasks = _rows_in_key_order(slot, keys, masks, m, np.int64(8))
     return okeys, omasks, hkeys, hmasks, True
-
-
-@njit(cache=True, nogil=True)
-def quiet_keys_in_box(box, table_keys, table_vals, qquiet):
-    """(keys, quarters): the packed keys of the O blocks with quiet quarters (``qquiet`` by O
-    block, a bit a quarter) among the blocks of the voxel box ``box``, ascending (walked in x, y,
-    z order: ``pack_block``'s order), and their quiet quarters. Reads the map: the thread that
-    owns it; costs a lookup per block of the box, whatever the map's size."""
-    bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
-    bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
-    nb = (bi1 - bi0 + 1) * (bj1 - bj0 + 1) * (bk1 - bk0 + 1)
-    out = np.empty(nb, dtype=np.int64)
-    quarters = np.empty(nb, dtype=np.uint8)
-    n = 0
-    for bi in range(bi0, bi1 + 1):
-        for bj in range(bj0, bj1 + 1):
-            for bk in range(bk0, bk1 + 1):
-                ob = find_block(table_keys, table_vals, bi, bj, bk)
-                if ob >= 0 and qquiet[ob] != 0:
-                    out[n] = pack_block(bi, bj, bk)
-                    quarters[n] = qquiet[ob]
-                    n += 1
-    return out[:n], quarters[:n]
-
-
-@njit(cache=True, nogil=True)
-def stale_skips(skipped, box, table_keys, table_vals, qquiet):
-    """Of the box's blocks a worker skipped quarters of as quiet (``skipped``: block number <<
-    ``SKIP_SHIFT`` | those quarters, ``projective_blocks``), the numbers of those with one of them not quiet now
-    (or not in O: a map loaded since), in order, as a new array. Reads the map: the thread that
-    owns it."""
-    bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
-    nbj, nbk = (box[4] >> BLOCK_BITS) - bj0 + 1, (box[5] >> BLOCK_BITS) - bk0 + 1
-    out = np.empty(skipped.shape[0], dtype=np.int64)
-    n = 0
-    for t in range(skipped.shape[0]):
-        b, qs = skipped[t] >> SKIP_SHIFT, skipped[t] & QUIET_ALL
-        ob = find_block(table_keys, table_vals, bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk)
-        if ob < 0 or (np.int64(qquiet[ob]) & qs) != qs:
-            out[n] = b
-            n += 1
-    return out[:n]

@@ -514,11 +514,18 @@ def _frame_voxels(origin, ends, kind, inv_res, res, seen, seen_meta, hits, misse
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _count_free(nfree, b, off, now_free, changed, n_ch):
+def _count_free(nfree, still, b, off, now_free, now_still, changed, n_ch):
     """The voxel at ``off`` of O block b became clamped free (``now_free``) or left it: its
     quarter's count follows, and the block is appended to ``changed`` when that count reaches
-    or leaves 64. Returns the new length of ``changed``. (Only on such a change, so rare that
-    the call costs nothing; the per-voxel update around it is written out in each kernel.)"""
+    or leaves 64; its bit in ``still`` (B, 8) is set when it is still now (``now_still``:
+    clamped free, no ST or LT), else cleared. Returns the new length of ``changed``. (Only on
+    such a change, so rare that the call costs nothing; the per-voxel update around it is
+    written out in each kernel.)"""
+    bit = np.uint64(1) << np.uint64(off & 63)
+    if now_still:
+        still[b, off >> 6] |= bit
+    else:
+        still[b, off >> 6] &= ~bit
     qi = quarter_of(off)
     if now_free:
         nfree[b, qi] += 1
@@ -539,7 +546,7 @@ def apply_mask_updates(
     table_keys, table_vals, block_coords, meta, logodds, stamp, hit_mark,
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max, counters,
-    nfree, qquiet, use_quiet, changed, ch_meta, d_keys, d_vals, d_st, d_lt,
+    nfree, qquiet, still_bits, use_quiet, changed, ch_meta, d_keys, d_vals, d_st, d_lt,
 ):  # fmt: skip
     """The misses (``hit`` False) or the hits (True) of blocks given as bit masks (``bkeys``
     packed block keys, ``masks`` (B, 8) uint64: bit ``off`` of a block's 512, in key order,
@@ -609,7 +616,8 @@ def apply_mask_updates(
                 stamp[b, off] = frame_id
                 n_done += 1
                 if use_quiet and (old == lo_min32) != (v == lo_min32):
-                    n_ch = _count_free(nfree, b, off, v == lo_min32, changed, n_ch)
+                    now_still = v == lo_min32 and (db < 0 or (d_st[db, off] == 0.0 and d_lt[db, off] == 0.0))
+                    n_ch = _count_free(nfree, still_bits, b, off, v == lo_min32, now_still, changed, n_ch)
     tb_meta[0] = n_tb
     ch_meta[0] = n_ch
     counters[0 if hit else 1] += n_done
@@ -623,7 +631,7 @@ def apply_voxels_kernel(
     frame_id, tick_first, tb_block, tb_off, tb_meta,
     hit_lo, miss_lo, lo_min, lo_max,
     phase, start, counters,
-    nfree, qquiet, use_quiet, changed, ch_meta, d_keys, d_vals, d_st, d_lt,
+    nfree, qquiet, still_bits, use_quiet, changed, ch_meta, d_keys, d_vals, d_st, d_lt,
 ):  # fmt: skip
     """Give the voxels of ``frame_voxels`` their update, hits (phase 0) then misses (phase 1),
     from (phase, start). Returns (status, phase, index); on a status other than DONE the caller
@@ -711,7 +719,8 @@ def apply_voxels_kernel(
             stamp[last_b, off] = frame_id
             n_done += 1
             if use_quiet and (old == lo_min32) != (v == lo_min32):
-                n_ch = _count_free(nfree, last_b, off, v == lo_min32, changed, n_ch)
+                now_still = v == lo_min32 and (last_db < 0 or (d_st[last_db, off] == 0.0 and d_lt[last_db, off] == 0.0))
+                n_ch = _count_free(nfree, still_bits, last_b, off, v == lo_min32, now_still, changed, n_ch)
         counters[phase] += n_done
         phase += 1
         start = 0
@@ -785,16 +794,34 @@ def quiet_after_tick(n_blocks, nfree, qquiet, block_coords, d_keys, d_vals, st, 
 
 
 @njit(cache=True, nogil=True)
-def quiet_count(logodds, n_blocks, lo_min, nfree):
+def quiet_count(logodds, n_blocks, lo_min, nfree, still, block_coords, d_keys, d_vals, st, lt):
     """``nfree[b, q]``: voxels of quarter q of block b at ``lo_min``, for the first ``n_blocks``
-    blocks."""
+    blocks; ``still[b]`` (8 words, ``voxel_offset`` bits): those with no ST or LT."""
     lo32 = np.float32(lo_min)
     for b in range(n_blocks):
         for q in range(8):
             nfree[b, q] = 0
+        for w in range(8):
+            still[b, w] = 0
+        db = find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1], block_coords[b, 2])
         for off in range(BLOCK_VOXELS):
             if logodds[b, off] == lo32:
                 nfree[b, quarter_of(off)] += 1
+                if db < 0 or (st[db, off] == 0.0 and lt[db, off] == 0.0):
+                    still[b, off >> 6] |= np.uint64(1) << np.uint64(off & 63)
+
+
+@njit(cache=True, nogil=True)
+def still_clear(d_from, d_n, d_coords, st, lt, o_keys, o_vals, still):
+    """Clear the ``still`` bits (``quiet_count``) of the voxels with ST or LT in D blocks
+    ``d_from`` to ``d_n`` - 1 (LT seeded into them, or D replaced)."""
+    for db in range(d_from, d_n):
+        ob = find_block(o_keys, o_vals, d_coords[db, 0], d_coords[db, 1], d_coords[db, 2])
+        if ob < 0:
+            continue
+        for off in range(BLOCK_VOXELS):
+            if st[db, off] != 0.0 or lt[db, off] != 0.0:
+                still[ob, off >> 6] &= ~(np.uint64(1) << np.uint64(off & 63))
 
 
 # the dedupe key of an invalid pixel (and an empty slot of the dedupe set): never a voxel's, whose

@@ -40,10 +40,8 @@ from numba.core.registry import CPUDispatcher
 from .. import core
 from ..core import raycast
 from ..core.config import MapConfig
-from ..core.grid import pack_blocks
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import quiet_keys_in_box
 from ..core.sensors import transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -94,6 +92,9 @@ def warm_maps(cfg: MapConfig) -> None:
     o, d, q = m.O, m.D, _QuietBlocks
     raycast.quiet_after_tick(o.n_blocks, np.zeros((o.max_blocks, 8), dtype=q.NFREE), np.zeros(o.max_blocks, dtype=q.FLAG),
                              o.block_coords, d.table_keys, d.table_vals, d.data["st"], d.data["lt"])  # fmt: skip
+    # and the still voxels cleared where LT was seeded (the rays group's apply_voxels after a seed)
+    raycast.still_clear(0, d.n_blocks, d.block_coords, d.data["st"], d.data["lt"], o.table_keys, o.table_vals,
+                        np.zeros((o.max_blocks, 8), dtype=np.uint64))  # fmt: skip
     project(m)
     snapshot_ot_bytes(m)
     _group(np.zeros((2, 3), dtype=np.int64), np.zeros(2, dtype=np.int64), 1, 1)
@@ -135,12 +136,13 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "p
     ends = np.array([[-0.5, -0.5, 2.0], [0.5, -0.5, 2.0], [-0.5, 0.5, 2.0], [0.5, 0.5, 2.0]])  # (depth_rays' for them)
     none = np.empty(0, dtype=np.int64)
     m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
-    # the map thread's fill of blocks a worker skipped as quiet that are quiet no more: every
-    # block listed as quiet, none is
-    m._quiet_keys = np.sort(pack_blocks(m.O.block_coords[: m.O.n_blocks]))
-    m.apply_voxels(none, none, 0, m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends))
-    # and the list of a big map's quiet blocks, those of the frame's box (LayeredMap._publish_quiet)
-    quiet_keys_in_box(np.zeros(6, dtype=np.int64), m.O.table_keys, m.O.table_vals, m._quiet_sync().qquiet)
+    # the map thread's fill of blocks a worker skipped as still that are still no more: every
+    # voxel read as still, none is
+    q = m._quiet_sync()
+    q.still[:] = ~np.uint64(0)
+    projection = m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends)
+    q.still[:] = 0
+    m.apply_voxels(none, none, 0, projection)
 
 
 GROUPS = {"rays": warm_rays, "lists": warm_lists, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
