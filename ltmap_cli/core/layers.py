@@ -876,7 +876,8 @@ class LayeredMap:
     def depth_projection(self, depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, T: np.ndarray,
                          max_range: float, ends: np.ndarray) -> FrameMasks:
         """What ``apply_voxels`` needs to make the projective misses of one depth image (the
-        frame's ``depth_rays`` gave ``ends``). Reads no map state (a worker thread's part)."""
+        frame's ``depth_rays`` gave ``ends``). A worker thread's part: of the map it reads only
+        what ``_map_seen`` gives, as a hint that ``apply_voxels`` checks."""
         depth, unit_mm = _depth_view(depth)
         T = np.ascontiguousarray(T, dtype=np.float64)
         R, t = T[:3, :3], T[:3, 3]
@@ -957,8 +958,8 @@ class LayeredMap:
         whole rays, no projection; projective: ``depth_projection`` and the rays' tails, the
         tails' misses set in the projection's block masks and the hits in masks of their own
         (``tail_masks``; listed by ``frame_voxels`` only in a box of more than
-        ``LISTED_VOXELS_MAX_BLOCKS`` blocks, or when a step leaves the box). Reads no map state
-        (a worker thread's part)."""
+        ``LISTED_VOXELS_MAX_BLOCKS`` blocks, or when a step leaves the box). A worker thread's
+        part (of the map, the projection reads only ``_map_seen``'s hint)."""
         if self.cfg.sensor.depth_integration != "projective":
             return self.ray_voxels(T[:3, 3], ends, kind)
         projection = self.depth_projection(depth, fx, fy, cx, cy, T, max_range, ends)

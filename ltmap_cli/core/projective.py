@@ -10,11 +10,13 @@ With ``map.sensor.depth_integration: projective`` a depth frame is integrated in
 - farther in front of the returns, by projection: a voxel of the frustum whose centre projects
   onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the camera than
   that pixel's range minus ``band``, or one of the pixels at the rim of its projection is, is a
-  miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). It reads no map
-  state, so the worker threads run it; the thread that owns the map applies the blocks' masks
-  in frame order (``core.raycast.apply_mask_updates``), the tails' misses set in them too
-  (``tail_masks``), skipping quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
-  free, no ST or LT: a miss there changes nothing).
+  miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). The worker
+  threads run it, leaving out the quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
+  free, no ST or LT) and the still voxels (one such voxel), where a miss changes nothing, as
+  they read them from the map while the map thread works on earlier frames; the thread that
+  owns the map fills in those that are not quiet or still by the time the frame's turn comes
+  (``projective_refill``) and applies the blocks' masks in frame order
+  (``core.raycast.apply_mask_updates``), the tails' misses set in them too (``tail_masks``).
 
 It differs from the exact traversal only in free space farther than ``band`` from a return
 (voxels a ray passes but whose centre and rim project onto nearer pixels, voxels beyond the

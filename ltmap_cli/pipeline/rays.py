@@ -2,7 +2,9 @@
 
 ``FrameCaster.cast(frame, T, robot)`` does for one placed frame what ``LayeredMap.integrate``
 would do before touching the map: its rays (per sensor type), then the voxels it updates
-(``LayeredMap.frame_voxels``). It reads no map state, so it runs in a worker thread.
+(``LayeredMap.frame_voxels``). It reads no map state (but for a depth image's projection,
+which reads the map's quiet and still voxels as a hint the map thread checks:
+``LayeredMap._map_seen``), so it runs in a worker thread.
 
 - LaserScan: a ray per beam at ``angle_min + i * angle_increment``; no return clears to
   ``max_range`` and marks nothing.
