@@ -704,7 +704,7 @@ class FrameMasks(NamedTuple):
     packed coordinates and its voxels' bits (``grid.voxel_offset`` order), the misses, and the
     hits in masks of their own. A depth frame's projection (``LayeredMap.depth_projection``,
     ``core.projective.projective_blocks``) also gives its box, the blocks whose quiet quarters
-    it skipped, and what ``projective_refill`` needs to fill them in; whole rays (``ray_voxels``:
+    or still voxels it left out, and what ``projective_refill`` needs to fill them in; whole rays (``ray_voxels``:
     scans, clouds, exact depth) give keys, masks and hits only."""
 
     keys: np.ndarray  # (n,) int64, ascending

@@ -483,10 +483,9 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     read). A block's quiet quarters are not filled (a block all quiet not at all) nor are its
     still voxels tested; its number in the box and those quarters (``SKIP_SHIFT``) go to
     ``skipped`` with the O block read (``skipped[t, 1]``) and the still bits read to
-    ``skipped_still`` (from ``n_skipped`` on), for the map
-    thread to fill the block whole if one of them is quiet or still no more when the frame's
-    turn comes (``projective_refill``). So what was read, however old, changes
-    only the work, not the map."""
+    ``skipped_still`` (from ``n_skipped`` on), for the map thread to fill in those that are
+    quiet or still no more when the frame's turn comes (``projective_refill``). So what was
+    read, however old, changes only the work, not the map."""
     h, w = reach.shape
     bi0, bj0, bk0 = box[0] >> BLOCK_BITS, box[1] >> BLOCK_BITS, box[2] >> BLOCK_BITS
     bi1, bj1, bk1 = box[3] >> BLOCK_BITS, box[4] >> BLOCK_BITS, box[5] >> BLOCK_BITS
@@ -516,6 +515,8 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
             continue
         qskip = np.int64(0)
         anyw = np.uint64(0)
+        for t in range(8):
+            words[t] = 0
         ob = find_block(o_keys, o_vals, bi, bj, bk) if lookup else -1
         if 0 <= ob < n_known:
             qskip = np.int64(qquiet[ob])
@@ -530,9 +531,6 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                 n_skipped += 1
                 if qskip == QUIET_ALL:
                     continue
-        if anyw == 0:
-            for t in range(8):
-                words[t] = 0
         keys[n] = pack_block(bi, bj, bk)
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
                        e, masks[n], fs, ks, qskip, words):  # fmt: skip
