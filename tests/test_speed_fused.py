@@ -291,6 +291,50 @@ def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
         assert 0 < len(k2) < (raw > 0).sum()
 
 
+def test_fused_depth_kernel_dedupe_set_with_every_ray_in_its_own_block():
+    """The dedupe set keeps a row of bits per end block. An image whose 128 end voxels each lie
+    in a block of their own (as many rows as rays), each seen again two and four rows further
+    down (repeats that only the set finds: the neighbour test compares the row above alone),
+    gives the serial steps' rays, hits and clear rays apart; a set of 256 slots, half full with
+    the 128, starts again, and one of 512 does not."""
+    from ltmap_cli.core.grid import BLOCK
+    from ltmap_cli.core.raycast import RAY_CLEAR, RAY_HIT, _depth_rays_pass
+
+    h, w = 6, 64
+    u = np.arange(w)
+    a = 3000 + 37 * u  # mm: neighbours' points 0.75 m apart and more (fx 4), blocks 0.4 m
+    raw = np.empty((h, w), dtype=np.uint16)
+    raw[0::2] = a
+    raw[1::2] = a + 1000  # rows 1, 3, 5: other blocks again
+    raw[4, ::3] = 0  # holes: invalid pixels among the repeats
+    fx, fy, cx, cy = 4.0, 1e6, (w - 1) / 2, (h - 1) / 2  # every row looks the same way (y within 1e-5 m)
+    T = np.eye(4)
+    T[:3, 3] = [0.0, 0.025, 0.0]  # y in the middle of a voxel
+    lmap = LayeredMap()
+    lmap.cfg.sensor.ground_tolerance = -1.0  # (no ground: z is the depth here)
+    depth = raw.astype(np.float32) * np.float32(0.001)
+    depth[raw == 0] = np.nan
+    e1, k1 = lmap.rays(T[:3, 3], transform_points(T, depth_to_points(depth, fx, fy, cx, cy)), None, 100.0, None, True)
+    keep = k1 > 0
+    e2, k2 = lmap.depth_rays(raw, fx, fy, cx, cy, T, 100.0, None, True)
+    assert np.array_equal(e1[keep], e2) and np.array_equal(k1[keep], k2)
+    assert len(k2) == 2 * w
+    blocks = np.floor(e2 / (lmap.resolution * BLOCK)).astype(np.int64)
+    assert len(np.unique(blocks, axis=0)) == len(k2)  # every kept ray its own block
+    none = np.zeros(3)
+    args = (raw, True, fx, fy, cx, cy, T, 100.0, -1.0, np.eye(4), none, none, False, True, 1.0 / lmap.resolution)
+    e3, k3, ok = _depth_rays_pass(*args, np.int64(4 * w))
+    assert not ok and len(k3) == 0
+    e4, k4, ok = _depth_rays_pass(*args, np.int64(8 * w))
+    assert ok and np.array_equal(e4, e2) and np.array_equal(k4, k2)
+    # a clear ray and a hit ending in the same voxel (z in [3.00, 3.05) m, the ground's tolerance
+    # 3.02 m between them) are two rays, each kept once: the bits are two a voxel
+    col = np.array([[3010], [3040], [3010], [3040], [3010]], dtype=np.uint16)
+    lmap.cfg.sensor.ground_tolerance = 3.02
+    e6, k6 = lmap.depth_rays(col, 4.0, 1e6, 0.0, 2.0, T, 100.0, None, True)
+    assert k6.tolist() == [RAY_CLEAR, RAY_HIT] and np.allclose(e6[:, 2], [3.01, 3.04])
+
+
 def test_fused_depth_kernel_dedupe_set_sized_by_the_previous_frame():
     """The dedupe set starts at the size the thread's previous frame needed: a frame with far
     more end voxels than that is done again with a bigger set, one with far fewer uses a set
