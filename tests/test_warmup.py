@@ -56,6 +56,65 @@ def test_replay_compiles_nothing_the_warm_up_did_not(tmp_path):
     assert json.loads(out.stdout.strip().splitlines()[-1]) == {}
 
 
+# the same for the plain path (``Replay.fast`` False: depth images as float32 metres, rays from
+# points), the tests' reference: the groups and ``warm_depth_points`` before the replay
+_PLAIN_SCRIPT = _SCRIPT.split("cfg = Config()")[0] + """
+from pathlib import Path
+from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+from ltmap_cli.pipeline.warmup import warm_depth_points
+cfg = Config()
+cfg.replay.plots = False
+warm_up(cfg.map, replay_groups(cfg.replay))
+warm_depth_points(cfg.map)
+before = kernels()
+run = Replay(cfg, ReplayRequest([Path(sys.argv[1])], Path(sys.argv[2])))
+run.fast, run.threads = False, False
+run.run()
+print(json.dumps({k: [before.get(k, 0), n] for k, n in kernels().items() if n != before.get(k, 0)}))
+"""
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
+def test_a_plain_replay_compiles_nothing_its_warm_up_did_not(tmp_path):
+    """After a core module changed, the plain path's first depth frame compiled its kernels
+    (float32 metres: 6.9 s); the replay now warms them (``warm_depth_points``) before it."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    out = subprocess.run([sys.executable, "-c", _PLAIN_SCRIPT, str(HOUSE), str(tmp_path / "out")],
+                         check=True, capture_output=True, text=True, env=env)  # fmt: skip
+    assert json.loads(out.stdout.strip().splitlines()[-1]) == {}
+
+
+def test_a_plain_replay_warms_its_depth_kernels_before_its_first_depth_frame(tmp_path, monkeypatch):
+    """``Replay._dispatch`` calls ``warm_depth_points`` once, before the first depth frame is
+    cast, on the plain path only."""
+    import ltmap_cli.pipeline.replay as replay_mod
+    from ltmap_cli.io.decode import RawDepthFrame
+    from ltmap_cli.io.frames import DepthFrame
+    from ltmap_cli.pipeline.rays import FrameCaster
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    seen: list[str] = []
+    real_cast = FrameCaster.cast
+
+    def cast(self, frame, T, robot):
+        if isinstance(frame, (DepthFrame, RawDepthFrame)):
+            seen.append("depth")
+        return real_cast(self, frame, T, robot)
+
+    monkeypatch.setattr(replay_mod, "warm_depth_points", lambda cfg: seen.append("warm"))
+    monkeypatch.setattr(FrameCaster, "cast", cast)
+    for fast in (False, True):
+        seen.clear()
+        cfg = Config()
+        cfg.replay.plots = False
+        run = Replay(cfg, ReplayRequest([HOUSE], tmp_path / f"out{fast}"))
+        run.fast, run.threads = fast, False
+        run.run()
+        assert "depth" in seen
+        assert seen.count("warm") == (0 if fast else 1) and seen.index("depth") > (-1 if fast else seen.index("warm"))
+
+
 def test_replay_groups():
     cfg = Config()
     assert replay_groups(cfg.replay) == ["rays", "lists", "maps"]

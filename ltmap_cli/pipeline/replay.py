@@ -61,7 +61,7 @@ from .sinks import (
     inputs_comment,
 )
 from .timing import StageTimer
-from .warmup import BackgroundCompile, kernels_cached, replay_groups, warm_depth, warm_up
+from .warmup import BackgroundCompile, kernels_cached, replay_groups, warm_depth, warm_depth_points, warm_up
 
 NS = 1_000_000_000
 COMPILING = "compiling kernels (first run only)"  # the progress's phase while a first run waits for them
@@ -176,7 +176,7 @@ class Replay:
         self._compiled_depth: tuple | None = None  # the (dtype, contiguous) key of the depth kernels they compile
         self.localization = None  # the --localize pre-pass's result
         self._next_loc = 0
-        self._warm_depth: set = set()  # (dtype, contiguous) of the raw depth images warmed up
+        self._warm_depth: set = set()  # (dtype, contiguous) of the raw depth images warmed up; "points": the plain path's
         self._done_s = 0.0  # log time done, for the progress of the phases after the log
         self.log_total_s = 0.0
         self._window_start_ns = 0  # the first log time mapped (the log's first message, or replay.start_s after it)
@@ -501,6 +501,10 @@ class Replay:
                     self._report_progress(None, force=True, phase=COMPILING)  # children compiled: here, now)
                 with self.timer("warmup"):
                     warm_depth(self.cfg.map, *key)
+            elif raw is None and isinstance(event.frame, (DepthFrame, RawDepthFrame)) and "points" not in self._warm_depth:
+                self._warm_depth.add("points")  # (the plain path: float32 metres as points)
+                with self.timer("warmup"):
+                    warm_depth_points(self.cfg.map)
             if self.state.fixed_frame is None:
                 self.state.fixed_frame = self.scheduler.fixed_frame
             T = event.T

@@ -42,7 +42,7 @@ from ..core import raycast
 from ..core.config import MapConfig
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.sensors import transform_points
+from ..core.sensors import depth_to_points, transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
 
@@ -143,6 +143,19 @@ def warm_depth(cfg: MapConfig, dtype, contiguous: bool = True, parts=("rays", "p
     projection = m.depth_projection(depth, 1.0, 1.0, 0.5, 0.5, T, 4.0, ends)
     q.still[:] = 0
     m.apply_voxels(none, none, 0, projection)
+
+
+def warm_depth_points(cfg: MapConfig) -> None:
+    """The depth kernels of the plain path (``Replay.fast`` False, the tests' reference): a
+    depth image in float32 metres as points, their rays (``classify_rays``, the end points'
+    dedupe) and, with projective integration, the projection of float32 metres. Without it the
+    first depth frame of a plain replay compiled them after a core module changed (4.7 s)."""
+    m = LayeredMap(cfg)
+    T = _pose()
+    depth = np.ones((2, 2), dtype=np.float32)
+    pts = transform_points(T, depth_to_points(depth, 1.0, 1.0, 0.5, 0.5))
+    m.rays(T[:3, 3], pts, None, max_range=4.0, robot_pose=T, dedupe=m.cfg.sensor.dedupe_dense)
+    warm_depth(cfg, np.float32, parts=("projection",))
 
 
 GROUPS = {"rays": warm_rays, "lists": warm_lists, "maps": warm_maps, "fused_scan": warm_fused_scan, "planner": warm_planner,
