@@ -163,7 +163,7 @@ def time_parts(frames: list[dict], rounds: int) -> tuple[dict, dict]:
         spent["rays"] += time.perf_counter() - c
         d, unit_mm = _depth_view(f["depth"])
         args = (d, unit_mm, fx, fy, cx, cy, f["T"], f["max_range"], float(sc.ground_tolerance), *fp, True,
-                1.0 / lmap.resolution, np.int64(depth_rays_cap(len(kind), d.size)))  # fmt: skip
+                1.0 / lmap.resolution, np.int64(depth_rays_cap(len(kind), d.size)), True)  # fmt: skip
         for name, fn in variants.items():
             c = time.perf_counter()
             fn(*args)

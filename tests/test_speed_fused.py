@@ -292,13 +292,20 @@ def test_fused_depth_kernel_equals_serial_steps_on_narrow_images():
 
 
 def test_fused_depth_kernel_dedupe_set_with_every_ray_in_its_own_block():
-    """The dedupe set keeps a row of bits per end block. An image whose 128 end voxels each lie
-    in a block of their own (as many rows as rays), each seen again two and four rows further
-    down (repeats that only the set finds: the neighbour test compares the row above alone),
-    gives the serial steps' rays, hits and clear rays apart; a set of 256 slots, half full with
-    the 128, starts again, and one of 512 does not."""
+    """The dedupe set keeps a row of bits per end block, or, for a frame spread over more blocks
+    than it has rows for, the voxels' keys. An image whose 128 end voxels each lie in a block of
+    their own (as many rows as rays), each seen again two and four rows further down (repeats
+    that only the set finds: the neighbour test compares the row above alone), gives the serial
+    steps' rays either way, hits and clear rays apart."""
     from ltmap_cli.core.grid import BLOCK
-    from ltmap_cli.core.raycast import RAY_CLEAR, RAY_HIT, _depth_rays_pass
+    from ltmap_cli.core.raycast import (
+        DEDUPE_BLOCKS,
+        DEDUPE_DONE,
+        DEDUPE_FULL,
+        RAY_CLEAR,
+        RAY_HIT,
+        _depth_rays_pass,
+    )
 
     h, w = 6, 64
     u = np.arange(w)
@@ -323,10 +330,17 @@ def test_fused_depth_kernel_dedupe_set_with_every_ray_in_its_own_block():
     assert len(np.unique(blocks, axis=0)) == len(k2)  # every kept ray its own block
     none = np.zeros(3)
     args = (raw, True, fx, fy, cx, cy, T, 100.0, -1.0, np.eye(4), none, none, False, True, 1.0 / lmap.resolution)
-    e3, k3, ok = _depth_rays_pass(*args, np.int64(4 * w))
-    assert not ok and len(k3) == 0
-    e4, k4, ok = _depth_rays_pass(*args, np.int64(8 * w))
-    assert ok and np.array_equal(e4, e2) and np.array_equal(k4, k2)
+    # by block: rows for cap / 16 blocks, so 2048 slots hold the 128 (128 rows: all used), 1024
+    # do not (the frame is done again by voxel); by voxel: 256 slots, half full with the 128,
+    # start again, and 512 do not
+    for cap, by_block, status in ((2048, True, DEDUPE_DONE), (1024, True, DEDUPE_BLOCKS),
+                                  (256, False, DEDUPE_FULL), (512, False, DEDUPE_DONE)):  # fmt: skip
+        e3, k3, st = _depth_rays_pass(*args, np.int64(cap), by_block)
+        assert st == status, (cap, by_block)
+        if st == DEDUPE_DONE:
+            assert np.array_equal(e3, e2) and np.array_equal(k3, k2)
+        else:
+            assert len(k3) == 0
     # a clear ray and a hit ending in the same voxel (z in [3.00, 3.05) m, the ground's tolerance
     # 3.02 m between them) are two rays, each kept once: the bits are two a voxel
     col = np.array([[3010], [3040], [3010], [3040], [3010]], dtype=np.uint16)

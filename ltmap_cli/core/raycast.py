@@ -846,6 +846,7 @@ _DEDUPE_BLOCK_KEEP = ~np.int64(
     (BLOCK_MASK << (2 * _PACK_BITS)) | (BLOCK_MASK << _PACK_BITS) | BLOCK_MASK
 )  # fmt: skip
 DEDUPE_BLOCK_WORDS = 2 * BLOCK_VOXELS // 64  # a block's dedupe bits: two a voxel (clear, hit)
+DEDUPE_DONE, DEDUPE_FULL, DEDUPE_BLOCKS = range(3)  # how a pass of _depth_rays_pass ended
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -901,10 +902,12 @@ ROW_PAD = 16  # float64s between the depth kernel's row buffers (128 bytes)
 def _depth_rays_pass(
     depth, unit_mm, fx, fy, cx, cy, T,
     max_range, ground_tol, fp_inv, fp_min, fp_max, use_fp,
-    dedupe, inv_res, cap,
+    dedupe, inv_res, cap, by_block,
 ):  # fmt: skip
-    """``depth_image_rays`` with a dedupe set of ``cap`` slots: (ends, kind, True), or
-    (empty, empty, False) when cap / 2 end voxels are kept and a pixel is still to look up.
+    """``depth_image_rays`` with a dedupe set of ``cap`` slots: (ends, kind, ``DEDUPE_DONE``), or
+    (empty, empty, ``DEDUPE_FULL``) when cap / 2 end voxels are kept and a pixel is still to look
+    up, or (empty, empty, ``DEDUPE_BLOCKS``) when ``by_block`` and the end voxels lie in more
+    than cap / 16 blocks.
 
     Row by row in two passes. The first has no branches, so the compiler vectorizes it (hence
     ``error_model="numpy"``: no zero-division checks): every pixel's end point, its kind and its
@@ -922,11 +925,14 @@ def _depth_rays_pass(
     same, in the same order. About 4x faster than one branchy loop over the pixels (4.4 -> 1.2 ms
     for a 640x480 frame of the bench log).
 
-    The set holds the end voxels' blocks (a hash table of block keys, at most half full) and a
-    row of bits per block, two a voxel (``_dedupe_block``); a pixel looks its block up only when
-    it is not the previous pixel's, and sets its bit with no branch on whether it was set: the
-    ray is stored either way and counted only when new. A hash table of the voxels' keys,
-    probed by every pixel, took 1.12x the kernel's time (room, hall and office frames).
+    With ``by_block`` the set holds the end voxels' blocks (a hash table of block keys, at most
+    half full) and a row of bits per block, two a voxel (``_dedupe_block``); a pixel looks its
+    block up only when it is not the previous pixel's, and sets its bit with no branch on whether
+    it was set: the ray is stored either way and counted only when new. The set of the voxels'
+    keys, probed by every pixel (without ``by_block``), took 1.12x the kernel's time (room, hall
+    and office frames); it is kept for frames whose end voxels are spread over many blocks
+    (noise), where 128 bytes of bits a block took 2.8x the memory (a 1280x720 frame of noise:
+    623 k blocks, 130 MB against 46 MB).
     """
     h, w = depth.shape
     n_max = cap // 2 if dedupe else h * w  # with dedupe, at most half the set's slots are kept
@@ -944,8 +950,12 @@ def _depth_rays_pass(
     # the dedupe set: the end voxels' blocks (a hash table of their keys -> a row of bits),
     # and the blocks' rows (allocated for the most blocks the set may hold, touched as used)
     table = np.full(cap, -1, dtype=np.int64)
-    table_row = np.empty(cap, dtype=np.int64)
-    bits = np.empty((cap // 2, DEDUPE_BLOCK_WORDS), dtype=np.uint64)
+    table_row = np.empty(cap if by_block else 0, dtype=np.int64)
+    # rows used at most: 8 bytes a slot, as the table's (allocated for cap / 2, touched as used:
+    # allocated for cap / 16, the kernel took 1.0x to 1.15x the time of the set of voxels' keys
+    # on room and hall frames, against 0.88x to 0.92x; measured, not explained)
+    rows_max = cap // 16 if by_block else 0
+    bits = np.empty((cap // 2 if by_block else 0, DEDUPE_BLOCK_WORDS), dtype=np.uint64)
     n_rows = 0
     mask = cap - 1
     last_block = np.int64(-1)
@@ -1077,9 +1087,21 @@ def _depth_rays_pass(
         for q in range(n_look):  # pass 2: in order, the pixels left
             u = idx[q]
             new = np.int64(1)
-            if dedupe:  # the key's bit in its block's row (a row found again only when the block changes)
-                if 2 * (m + 1) > cap:  # the set is half full (the rays kept, their blocks): start again, 4x bigger
-                    return ends[:0], kind[:0], False
+            if dedupe and 2 * (m + 1) > cap:  # the set is half full: start again, 4x bigger
+                return ends[:0], kind[:0], DEDUPE_FULL
+            if dedupe and not by_block:  # the key in the set of voxels
+                packed = key[u]
+                s = _slot(packed, mask)
+                while True:
+                    t = table[s]
+                    if t == packed:
+                        new = 0
+                        break
+                    if t == -1:
+                        table[s] = packed
+                        break
+                    s = (s + 1) & mask
+            elif dedupe:  # the key's bit in its block's row (a row found again only when the block changes)
                 blk, bit = _dedupe_block(key[u])
                 if blk != last_block:
                     s = _slot(blk, mask)
@@ -1089,6 +1111,8 @@ def _depth_rays_pass(
                             brow = table_row[s]
                             break
                         if t == -1:
+                            if n_rows == rows_max:  # spread over too many blocks: start again, by voxel
+                                return ends[:0], kind[:0], DEDUPE_BLOCKS
                             table[s] = blk
                             table_row[s] = n_rows
                             brow = n_rows
@@ -1110,7 +1134,7 @@ def _depth_rays_pass(
             kind[m] = rkind[u]
             m += new
         key, key_up = key_up, key
-    return ends[:m], kind[:m], True
+    return ends[:m], kind[:m], DEDUPE_DONE
 
 
 @njit(cache=True, nogil=True)
@@ -1128,18 +1152,23 @@ def depth_image_rays(
     depth: (H, W) raw pixels, uint16 millimetres (``unit_mm``, 0 invalid) or float32 metres (NaN /
     <= 0 invalid); T: 4x4 optical frame -> fixed frame. The dedupe set is sized by the voxels
     kept (a few ten thousand), not by the pixels: ``cap`` slots (a power of two,
-    ``depth_rays_cap``: from the previous frame's count) for the blocks, and rows of bits for up
-    to cap / 2 blocks, touched as used; a frame with more end voxels than it holds is done again
-    with a set 4x bigger (the pass stops when the set is half full, so a cap too small costs up
-    to a whole pass: 1.2 of 3.6 ms on a room frame of 24 k end voxels). A pixel that ends in the
-    same voxel as one of its neighbours before it skips the lookup.
+    ``depth_rays_cap``: from the previous frame's count) for the end voxels' blocks, and rows of
+    bits for up to cap / 16 blocks, touched as used; a frame with more end voxels than it holds
+    is done again with a set 4x bigger (the pass stops when the set is half full, so a cap too
+    small costs up to a whole pass: 1.2 of 3.6 ms on a room frame of 24 k end voxels), and one
+    with more blocks, with a set of the voxels' keys (``_depth_rays_pass``). A pixel that ends
+    in the same voxel as one of its neighbours before it skips the lookup.
     """
+    by_block = True
     while True:
-        ends, kind, ok = _depth_rays_pass(depth, unit_mm, fx, fy, cx, cy, T, max_range, ground_tol, fp_inv, fp_min,
-                                          fp_max, use_fp, dedupe, inv_res, cap)  # fmt: skip
-        if ok:
+        ends, kind, status = _depth_rays_pass(depth, unit_mm, fx, fy, cx, cy, T, max_range, ground_tol, fp_inv,
+                                              fp_min, fp_max, use_fp, dedupe, inv_res, cap, by_block)  # fmt: skip
+        if status == DEDUPE_DONE:
             return ends, kind
-        cap *= 4
+        if status == DEDUPE_FULL:
+            cap *= 4
+        else:
+            by_block = False
 
 
 DEPTH_CAP_MIN = 1 << 15  # the least dedupe set of depth_image_rays (slots)
