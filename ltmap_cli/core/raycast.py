@@ -560,7 +560,7 @@ def apply_mask_updates(
     (misses only raise a quarter's count of clamped-free voxels and hits only lower it, so each
     of the eight crosses 64 at most once a call). The misses of quiet quarters and of the voxels
     set in ``still_bits`` are dropped a word at a time (``QUARTER_KEEP``; a still voxel's miss
-    changes nothing: 0.75x of a room replay's time here, the tails' misses), and so is the miss
+    changes nothing: the tails' misses there made this kernel take 1.33x its time), and so is the miss
     of a still voxel whose bit is not set (``use_quiet``: clamped free, no ST or LT in D's
     ``d_st``, ``d_lt``; as ``apply_voxels_kernel``) voxel by voxel. The per-voxel update is
     written out here as in
