@@ -824,6 +824,24 @@ def test_tail_walks_in_lockstep_are_the_walks_of_ray_step():
             assert want[len(ties)] == [(0, 0, 0), (1, 0, 0), (2, 0, 0)]  # ends at x = 3.0: voxel 2 walked
 
 
+def test_ends_box_is_the_voxel_box_of_the_origin_and_the_ends():
+    """``ends_box``: floor(min) and floor(max) of the origin and the ends, in voxel keys, by
+    hand (negative coordinates floor down; the origin counts when it lies outside the ends;
+    an end on a voxel face belongs to the voxel above it), and against numpy on random ends."""
+    from ltmap_cli.core.projective import ends_box
+
+    ends = np.array([[0.26, -0.01, 1.0], [-0.051, 0.3, 0.05], [0.1, 0.2, -0.3]])
+    box = ends_box(np.array([0.5, 0.0, 0.0]), ends, 20.0)
+    assert box.tolist() == [-2, -1, -6, 10, 6, 20]
+    rng = np.random.default_rng(7)
+    for n in (0, 1, 5, 1000):
+        e = rng.uniform(-3, 3, (n, 3))
+        o = rng.uniform(-1, 1, 3)
+        pts = np.vstack([o[None], e])
+        want = np.concatenate([np.floor(pts.min(axis=0) * 20.0), np.floor(pts.max(axis=0) * 20.0)]).astype(np.int64)
+        assert ends_box(o, e, 20.0).tolist() == want.tolist()
+
+
 def test_tail_masks_are_the_listed_tails():
     """On frames of a tilted camera over a wall, a box and a floor, from several poses: the
     misses ``tail_masks`` sets beside the projection's are the tails' misses ``frame_voxels``

@@ -70,21 +70,20 @@ PROJECTIVE_CHUNK_BLOCKS = 1 << 14  # blocks with misses listed per call of proje
 @njit(cache=True, nogil=True)
 def ends_box(origin, ends, inv_res):
     """[i0, j0, k0, i1, j1, k1]: the voxel keys' box (inclusive) of the origin and the rays'
-    ends (one pass; numpy's ``min`` / ``max(axis=0)`` over the (N, 3) ends took about 1 ms a frame)."""
-    lo = np.empty(3)
-    hi = np.empty(3)
-    for a in range(3):
-        lo[a] = origin[a]
-        hi[a] = origin[a]
+    ends (one pass; numpy's ``min`` / ``max(axis=0)`` over the (N, 3) ends took about 1 ms a
+    frame). The bounds in six scalars: kept in two arrays, indexed by axis, the loop took 7 ns
+    an end (0.17 to 0.23 ms a room or hall frame), about 5x the time."""
+    x0 = x1 = origin[0]
+    y0 = y1 = origin[1]
+    z0 = z1 = origin[2]
     for r in range(ends.shape[0]):
-        for a in range(3):
-            x = ends[r, a]
-            lo[a] = min(lo[a], x)
-            hi[a] = max(hi[a], x)
+        x, y, z = ends[r, 0], ends[r, 1], ends[r, 2]
+        x0, x1 = min(x0, x), max(x1, x)
+        y0, y1 = min(y0, y), max(y1, y)
+        z0, z1 = min(z0, z), max(z1, z)
     box = np.empty(6, dtype=np.int64)
-    for a in range(3):
-        box[a] = np.int64(np.floor(lo[a] * inv_res))
-        box[3 + a] = np.int64(np.floor(hi[a] * inv_res))
+    box[0], box[1], box[2] = np.floor(x0 * inv_res), np.floor(y0 * inv_res), np.floor(z0 * inv_res)
+    box[3], box[4], box[5] = np.floor(x1 * inv_res), np.floor(y1 * inv_res), np.floor(z1 * inv_res)
     return box
 
 
