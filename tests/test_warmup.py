@@ -389,7 +389,7 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
 
 
 _KERNEL = """
-from numba import njit
+from ltmap_cli.jit import njit  # (the features this process compiles for, as every kernel of ltmap)
 
 
 @njit(cache=True)

@@ -42,7 +42,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..core.layers import TR_APPEAR, TR_BLOCK, TR_DISAPPEAR, TR_KIND, TR_OFF, TR_SINCE, TR_TICK
 

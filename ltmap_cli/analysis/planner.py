@@ -24,7 +24,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from ..errors import InputError, NoPathError
 from ..io.mapfile import GridMap

@@ -11,7 +11,7 @@ directly; a kernel that runs out of blocks returns and the Python side grows the
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 BLOCK_BITS = 3
 BLOCK = 1 << BLOCK_BITS  # voxels per block edge

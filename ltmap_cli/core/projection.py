@@ -16,7 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, band_k_range, find_block, voxel_offset
 

@@ -317,13 +317,15 @@ def _block_leaves(block_codes, lt_start, lt_offs, lt_bits, o_block, o_free, free
 
 @functools.lru_cache(maxsize=1)
 def _kernels():
-    import numba
+    from numba.core.registry import CPUDispatcher
+
+    from ..jit import njit
 
     global _push_leaf  # the kernels below call it: compiled first, as the global they resolve
-    if not isinstance(_push_leaf, numba.core.registry.CPUDispatcher):
-        _push_leaf = numba.njit(cache=True, inline="always")(_push_leaf)
-    return tuple(numba.njit(cache=True, nogil=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder,
-                                                                  _walk, _block_leaves))  # fmt: skip
+    if not isinstance(_push_leaf, CPUDispatcher):
+        _push_leaf = njit(cache=True, inline="always")(_push_leaf)
+    return tuple(njit(cache=True, nogil=True)(f) for f in (_morton, _prune, _count_nodes, _emit_preorder,
+                                                           _walk, _block_leaves))  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------

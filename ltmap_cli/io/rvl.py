@@ -7,7 +7,7 @@ nibbles whose top bit says another follows, the nibbles packed from the top of l
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from ..jit import njit
 
 
 @njit(cache=True, nogil=True)

@@ -1,0 +1,62 @@
+"""``ltmap_cli.jit``: the kernels' target features, chosen before numba builds its code generator
+(512-bit vectors where AVX-512 does not lower the clock; the user's ``NUMBA_CPU_*`` kept)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from ltmap_cli.jit import CLOCK_BOUND_AVX512, vector_features
+
+
+def test_vector_features_by_hand():
+    host = "+avx2,+avx512f,-amx-avx512,+fma"
+    assert vector_features("rocketlake", host, {}) == host + ",-prefer-256-bit"
+    assert vector_features("sapphirerapids", host, {"OTHER": "1"}) == host + ",-prefer-256-bit"
+    for name in ("skylake-avx512", "cascadelake"):  # their 512-bit instructions lower the clock
+        assert name in CLOCK_BOUND_AVX512 and vector_features(name, host, {}) is None
+    assert vector_features("znver3", "+avx2,-avx512f,+fma", {}) is None  # no AVX-512 ("-avx512f")
+    assert vector_features("rocketlake", host, {"NUMBA_CPU_FEATURES": "+avx2"}) is None  # the user's choice
+    assert vector_features("rocketlake", host, {"NUMBA_CPU_NAME": "generic"}) is None
+
+
+_PROBE = """
+import ltmap_cli.core.raycast  # (a kernel module: ltmap_cli.jit first)
+import numpy as np
+import llvmlite.binding as llvm
+from numba import njit
+from numba.core.registry import cpu_target
+from ltmap_cli.jit import vector_features
+
+@njit(cache=False)
+def axpy(a, x, y):
+    for i in range(x.shape[0]):
+        y[i] = a * x[i] + y[i]
+
+axpy(2.0, np.ones(64), np.ones(64))
+host = llvm.get_host_cpu_features().flatten()
+want = vector_features(llvm.get_host_cpu_name(), host, {}) or host
+asm = axpy.inspect_asm(axpy.signatures[0])
+print(cpu_target.target_context.codegen()._tm_features == want, want.endswith("-prefer-256-bit"), "zmm" in asm)
+"""
+
+
+def test_kernels_are_compiled_for_the_chosen_features_in_a_fresh_process():
+    """In a process that imports a kernel module first, numba's code generator takes
+    ``vector_features``' choice; where that allows 512-bit vectors, a vectorizable loop compiled
+    then uses them (zmm registers), and not when the user's ``NUMBA_CPU_FEATURES`` says so."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU")}
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, check=True)
+    same, wide, zmm = out.stdout.split()
+    assert same == "True"
+    if wide != "True":
+        pytest.skip("this CPU has no AVX-512, or one whose 512-bit instructions lower the clock")
+    assert zmm == "True"
+    import llvmlite.binding as llvm
+
+    env["NUMBA_CPU_FEATURES"] = llvm.get_host_cpu_features().flatten()  # numba's default, as a user would set it
+    out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split() == ["False", "True", "False"]  # (want: our choice; the codegen: the user's)
