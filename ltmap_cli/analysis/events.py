@@ -42,9 +42,9 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from ..jit import njit
 
 from ..core.layers import TR_APPEAR, TR_BLOCK, TR_DISAPPEAR, TR_KIND, TR_OFF, TR_SINCE, TR_TICK
+from ..jit import njit
 
 APPEAR, DISAPPEAR = TR_APPEAR, TR_DISAPPEAR
 KIND_NAME = {APPEAR: "appear", DISAPPEAR: "disappear"}

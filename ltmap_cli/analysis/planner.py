@@ -24,10 +24,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from ..jit import njit
 
 from ..errors import InputError, NoPathError
 from ..io.mapfile import GridMap
+from ..jit import njit
 from . import cell_to_world, in_bounds, occupied_mask, unknown_mask, world_to_cell
 
 _EPS = 1e-9

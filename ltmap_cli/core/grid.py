@@ -11,6 +11,7 @@ directly; a kernel that runs out of blocks returns and the Python side grows the
 from __future__ import annotations
 
 import numpy as np
+
 from ..jit import njit
 
 BLOCK_BITS = 3

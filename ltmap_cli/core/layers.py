@@ -23,9 +23,9 @@ from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from ..jit import njit
 
 from ..errors import CoreError
+from ..jit import njit
 from .config import MapConfig
 from .grid import (
     BLOCK,

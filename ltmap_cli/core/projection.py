@@ -16,8 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from ..jit import njit
 
+from ..jit import njit
 from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, band_k_range, find_block, voxel_offset
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100

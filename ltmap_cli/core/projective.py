@@ -26,8 +26,8 @@ there it decides free versus unknown, not what is occupied near a surface.
 from __future__ import annotations
 
 import numpy as np
-from ..jit import njit
 
+from ..jit import njit
 from .grid import BLOCK, BLOCK_BITS, BLOCK_VOXELS, find_block, pack_block, unpack_block, voxel_offset
 from .raycast import (
     QUARTER_KEEP,

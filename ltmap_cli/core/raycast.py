@@ -25,8 +25,8 @@ hit sets the voxel's ``hit`` mark (the tick rules need to know whether a frame o
 from __future__ import annotations
 
 import numpy as np
-from ..jit import njit
 
+from ..jit import njit
 from .grid import (
     _PACK_BITS,
     BLOCK_BITS,

@@ -7,6 +7,7 @@ nibbles whose top bit says another follows, the nibbles packed from the top of l
 from __future__ import annotations
 
 import numpy as np
+
 from ..jit import njit
 
 

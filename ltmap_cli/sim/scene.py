@@ -22,8 +22,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from ..jit import njit
 
+from ..jit import njit
 from .scenario import Door, Obj, Person, Scenario
 
 EPS = 1e-9
