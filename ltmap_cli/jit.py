@@ -10,7 +10,8 @@ replays 4 % less wall time, the maps the same bit for bit (IEEE arithmetic, no f
 width changes no result). So every module that defines kernels takes ``njit`` from here, and
 the features are set once, before numba builds its code generator (at the first kernel compiled
 or loaded from the cache; numba keys its cache by them). ``NUMBA_CPU_NAME`` or
-``NUMBA_CPU_FEATURES`` set by the user are kept as they are.
+``NUMBA_CPU_FEATURES`` set by the user are kept as they are, and so is ``NUMBA_ENABLE_AVX=0``
+(the host's features are numba's, which then have no AVX).
 """
 
 from __future__ import annotations
@@ -43,8 +44,9 @@ def _configure() -> None:
     if config.CPU_NAME is not None or config.CPU_FEATURES is not None:
         return
     import llvmlite.binding as llvm  # (loaded by numba already)
+    from numba.core.codegen import get_host_cpu_features  # (numba's: NUMBA_ENABLE_AVX=0 honoured)
 
-    chosen = vector_features(llvm.get_host_cpu_name(), llvm.get_host_cpu_features().flatten(), os.environ)
+    chosen = vector_features(llvm.get_host_cpu_name(), get_host_cpu_features(), os.environ)
     if chosen is not None:
         config.CPU_FEATURES = chosen
 

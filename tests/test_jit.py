@@ -60,3 +60,13 @@ def test_kernels_are_compiled_for_the_chosen_features_in_a_fresh_process():
     env["NUMBA_CPU_FEATURES"] = llvm.get_host_cpu_features().flatten()  # numba's default, as a user would set it
     out = subprocess.run([sys.executable, "-c", _PROBE], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split() == ["False", "True", "False"]  # (want: our choice; the codegen: the user's)
+
+
+def test_numbas_avx_switch_is_kept():
+    """``NUMBA_ENABLE_AVX=0`` (numba's switch for CPUs whose AVX is slow): numba's host features
+    then say no AVX-512, so ltmap sets none of its own."""
+    env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CPU")}
+    probe = "import ltmap_cli.jit; from numba.core import config; print(config.CPU_FEATURES)"
+    out = subprocess.run([sys.executable, "-c", probe], env={**env, "NUMBA_ENABLE_AVX": "0"},
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    assert out.stdout.strip() == "None"
