@@ -355,7 +355,7 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
     shutil.copytree(ROOT / "ltmap_cli", pkg, ignore=shutil.ignore_patterns("__pycache__"))
     env = {**os.environ, "PYTHONPATH": str(tmp_path / "code"), "NUMBA_CACHE_DIR": str(tmp_path / "numba")}
 
-    def cached(compile_one: bool = False, compile_two: bool = False) -> bool:
+    def cached(compile_one: bool = False, compile_two: bool = False, features: str | None = None) -> bool:
         code = ("import numpy as np\n"
                 "from ltmap_cli.pipeline.warmup import kernels_cached\n"
                 "from ltmap_cli.core import projective\n"
@@ -363,7 +363,8 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
                 + ("projective.ends_box(np.zeros(3), np.ones((2, 3)), 20.0)\n" if compile_one or compile_two else "")
                 + ("projective.depth_range_image(np.ones((16, 16), np.uint16), True, 9.0, 9.0, 8.0, 8.0, 8.0, 0.2)\n"
                    if compile_two else ""))  # fmt: skip
-        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, check=True,
+        run_env = env if features is None else {**env, "NUMBA_CPU_FEATURES": features}
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=run_env, check=True,
                              cwd=tmp_path)  # (not the checkout's folder: -c imports from the working folder first)
         assert out.stdout.split()[1] == str(pkg / "core" / "projective.py")
         return out.stdout.split()[0] == "True"
@@ -386,6 +387,12 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
     index.write_bytes(index.read_bytes()[:20])
     assert not cached(compile_one=True)
     assert index.exists() and cached()  # written again, whole
+    # code compiled for other target features (another CPU sharing the folder, or the user's
+    # NUMBA_CPU_FEATURES) is not this target's: not cached for them until they compile theirs;
+    # then both are
+    other = "+64bit,+cmov,+cx8,+fxsr,+mmx,+sse,+sse2"
+    assert not cached(compile_two=True, features=other)
+    assert cached(features=other) and cached()
 
 
 _KERNEL = """

@@ -217,17 +217,24 @@ def kernels_cached() -> bool:
     them), and an edited module's kernels are compiled again. Per core module, one index written
     for its text is enough: a kernel called only from other kernels (or from Python only on a
     rare path, a buffer's growth) keeps an index of an older text for as long as its callers'
-    are good, and a kernel never compiled has none. An index that cannot be read (a cache
+    are good, and a kernel never compiled has none; an index counts only with code for this
+    process's target (numba's key: CPU and features). An index that cannot be read (a cache
     copied in part, a damaged disk: numba writes them whole) is removed, so numba compiles that
     kernel again instead of failing on it in every run."""
     try:
+        from numba.core.registry import cpu_target
+
+        # numba keys a kernel's cached code by the target too (triple, CPU, features: ltmap.jit's
+        # choice): code compiled for another CPU sharing the folder, or for other
+        # NUMBA_CPU_FEATURES, is not this process's
+        target = cpu_target.target_context.codegen().magic_tuple()
         fresh: dict[str, bool] = {}
         for k in _core_kernels():
             f = k._cache._cache_file
             if not os.path.exists(f._index_path) or fresh.get(k.__module__):
                 continue
-            try:
-                good = bool(f._load_index())  # ({}: another numba, or another source text)
+            try:  # ({}: another numba, or another source text)
+                good = any(key[1] == target for key in f._load_index())
             except Exception:  # (unpickling a damaged file: any of several errors)
                 with contextlib.suppress(OSError):
                     os.remove(f._index_path)
