@@ -224,7 +224,7 @@ def kernels_cached() -> bool:
     try:
         from numba.core.registry import cpu_target
 
-        # numba keys a kernel's cached code by the target too (triple, CPU, features: ltmap.jit's
+        # numba keys a kernel's cached code by the target too (triple, CPU, features: ltmap_cli.jit's
         # choice): code compiled for another CPU sharing the folder, or for other
         # NUMBA_CPU_FEATURES, is not this process's
         target = cpu_target.target_context.codegen().magic_tuple()
