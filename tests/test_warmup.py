@@ -115,6 +115,86 @@ def test_a_plain_replay_warms_its_depth_kernels_before_its_first_depth_frame(tmp
         assert seen.count("warm") == (0 if fast else 1) and seen.index("depth") > (-1 if fast else seen.index("warm"))
 
 
+def _record_warm_up(monkeypatch, seen: list):
+    """Patch the warm-up's loaders and the frames' cast to note, in order, which ran in which thread."""
+    import threading
+
+    import ltmap_cli.pipeline.replay as replay_mod
+    import ltmap_cli.pipeline.warmup as warmup_mod
+    from ltmap_cli.io.decode import RawDepthFrame
+    from ltmap_cli.pipeline.rays import FrameCaster
+
+    real_up, real_depth, real_cast = warmup_mod.warm_up, warmup_mod.warm_depth, FrameCaster.cast
+
+    def up(cfg, groups):
+        real_up(cfg, groups)
+        seen.append(("groups", tuple(groups), threading.current_thread().name))
+
+    def depth(cfg, dtype, contiguous=True):
+        real_depth(cfg, dtype, contiguous)
+        seen.append(("depth", (dtype, contiguous), threading.current_thread().name))
+
+    def cast(self, frame, T, robot):
+        seen.append(("cast", "depth" if isinstance(frame, RawDepthFrame) else "other", ""))
+        return real_cast(self, frame, T, robot)
+
+    monkeypatch.setattr(replay_mod, "kernels_cached", lambda: True)  # (a warm run, whatever the cache holds)
+    for mod in (replay_mod, warmup_mod):
+        monkeypatch.setattr(mod, "warm_up", up)
+        monkeypatch.setattr(mod, "warm_depth", depth)
+    monkeypatch.setattr(FrameCaster, "cast", cast)
+
+
+@pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
+@pytest.mark.parametrize("threads", [True, False])
+def test_a_warm_run_loads_its_kernels_in_a_thread_of_its_own_before_its_first_frame(tmp_path, monkeypatch, threads):
+    """A warm replay loads the kernel groups it calls in the ``ltmap-warmup`` thread from its
+    start, and its depth images' kernels as soon as the first image is read; each before the
+    first frame that needs them is cast. The serial path loads them itself, at the first frame."""
+    import numpy as np
+
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    seen: list = []
+    _record_warm_up(monkeypatch, seen)
+    cfg = Config()
+    cfg.replay.plots = False
+    run = Replay(cfg, ReplayRequest([HOUSE], tmp_path / "out"))
+    run.threads = threads
+    run.run()
+    loads = [s for s in seen if s[0] != "cast"]
+    assert [s[:2] for s in loads] == [("groups", tuple(replay_groups(cfg.replay))), ("depth", (np.dtype(np.uint16), True))]
+    assert {s[2] for s in loads} == ({"ltmap-warmup_0"} if threads else {"MainThread"})
+    first_cast = seen.index(next(s for s in seen if s[0] == "cast"))
+    first_depth = seen.index(next(s for s in seen if s[1] == "depth" and s[0] == "cast"))
+    assert seen.index(loads[0]) < first_cast and seen.index(loads[1]) < first_depth
+
+
+@pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
+def test_a_failure_of_the_background_warm_up_is_the_runs(tmp_path, monkeypatch):
+    """A kernel that cannot be loaded in the warm-up thread (a damaged cache file) fails the run
+    with the same error, in the caller's thread, and nothing is cast before it."""
+    import ltmap_cli.pipeline.replay as replay_mod
+    import ltmap_cli.pipeline.warmup as warmup_mod
+    from ltmap_cli.errors import KernelCacheError
+    from ltmap_cli.pipeline.rays import FrameCaster
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    def broken(cfg, groups):
+        raise KernelCacheError("the kernel cache file x is damaged")
+
+    cast: list = []
+    monkeypatch.setattr(replay_mod, "kernels_cached", lambda: True)
+    monkeypatch.setattr(warmup_mod, "warm_up", broken)
+    monkeypatch.setattr(FrameCaster, "cast", lambda self, *a: cast.append(1))
+    cfg = Config()
+    cfg.replay.plots = False
+    run = Replay(cfg, ReplayRequest([HOUSE], tmp_path / "out"))
+    with pytest.raises(KernelCacheError, match="file x is damaged"):
+        run.run()
+    assert cast == []
+
+
 def test_replay_groups():
     cfg = Config()
     assert replay_groups(cfg.replay) == ["rays", "lists", "maps"]

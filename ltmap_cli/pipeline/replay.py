@@ -61,7 +61,16 @@ from .sinks import (
     inputs_comment,
 )
 from .timing import StageTimer
-from .warmup import BackgroundCompile, kernels_cached, replay_groups, warm_depth, warm_depth_points, warm_up
+from .warmup import (
+    BackgroundCompile,
+    BackgroundWarmUp,
+    depth_key,
+    kernels_cached,
+    replay_groups,
+    warm_depth,
+    warm_depth_points,
+    warm_up,
+)
 
 NS = 1_000_000_000
 COMPILING = "compiling kernels (first run only)"  # the progress's phase while a first run waits for them
@@ -171,6 +180,7 @@ class Replay:
         self.sinks: list[Sink] = []
         self._last_progress = 0.0
         self._compile: BackgroundCompile | None = None
+        self._loading: BackgroundWarmUp | None = None  # a warm run's kernels, loaded from the run's start
         self._compile_pending = False  # a first run whose compiling children are not started yet
         self._cold_depth = False  # ... and which will want the depth kernels
         self._compiled_depth: tuple | None = None  # the (dtype, contiguous) key of the depth kernels they compile
@@ -206,6 +216,8 @@ class Replay:
         finally:
             if self._compile is not None:
                 self._compile.stop()
+            if self._loading is not None:
+                self._loading.close()
 
     # ------------------------------------------------------------------------------------
     def _setup(self) -> tuple[RunState, TfBuffer, list, dict | None, dict | None]:
@@ -259,6 +271,9 @@ class Replay:
 
     def _run(self) -> dict:
         cfg, req, timer = self.cfg, self.req, self.timer
+        cached = kernels_cached()
+        if cached and self.threads:
+            self._loading = BackgroundWarmUp(cfg.map, replay_groups(cfg.replay))
         run, tf, mounts, static_info, resume_info = self._setup()
         self.state, self.lmap = run, run.lmap
         self.ticker = Ticker(cfg.map.layers.tick)
@@ -274,7 +289,7 @@ class Replay:
             run.log_start_ns = logs.start_ns
             start_ns, end_ns = self._window(logs)
             self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
-            if not kernels_cached():  # the first run: compile while the log is read and checked, from
+            if not cached:  # the first run: compile while the log is read and checked, from
                 self._cold_depth = bool(sel.depths) and self.fast  # its first depth image or frame (_start_compile)
                 self._compile_pending = True
             for s in self.sinks:
@@ -317,6 +332,8 @@ class Replay:
                         last_stamp[topic], last_log[topic] = item.stamp_ns, log_ns
                     if self._compile_pending and (not self._cold_depth or isinstance(item, RawDepthFrame)):
                         self._start_compile(item)
+                    if self._loading is not None and self.fast and isinstance(item, RawDepthFrame):
+                        self._loading.depth(depth_key(item.raw))  # (its kernels loaded before its turn)
                     self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
@@ -495,12 +512,15 @@ class Replay:
             if not self._warm:
                 self._warm_up()
             raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
-            if raw is not None and (key := (raw.dtype.newbyteorder("="), raw.flags.c_contiguous)) not in self._warm_depth:
+            if raw is not None and (key := depth_key(raw)) not in self._warm_depth:
                 self._warm_depth.add(key)
                 if self._compile is not None and key != self._compiled_depth:  # (a first run; not what the
                     self._report_progress(None, force=True, phase=COMPILING)  # children compiled: here, now)
                 with self.timer("warmup"):
-                    warm_depth(self.cfg.map, *key)
+                    if self._loading is not None:
+                        self._loading.depth(key).result()
+                    else:
+                        warm_depth(self.cfg.map, *key)
             elif raw is None and isinstance(event.frame, (DepthFrame, RawDepthFrame)) and "points" not in self._warm_depth:
                 self._warm_depth.add("points")  # (the plain path: float32 metres as points)
                 with self.timer("warmup"):
@@ -561,7 +581,10 @@ class Replay:
                 self._compile.wait(lambda ended, total: self._report_progress(
                     None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))
                 self._compile_wait_s = time.perf_counter() - t0
-            warm_up(self.cfg.map, replay_groups(self.cfg.replay))  # (the depth kernels: at their first frame)
+            if self._loading is not None:  # (loading since the run began)
+                self._loading.common.result()
+            else:
+                warm_up(self.cfg.map, replay_groups(self.cfg.replay))  # (the depth kernels: at their first frame)
 
     def _integrate(self, placed: Placed, cast: CastFrame, wait_s: float | None) -> None:
         run, timer, c = self.state, self.timer, self.counts

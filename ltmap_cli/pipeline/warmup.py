@@ -32,6 +32,7 @@ import pkgutil
 import subprocess
 import sys
 import time
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -184,6 +185,35 @@ def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
     """Call the kernels of ``groups`` once on throw-away maps (every group by default)."""
     for g in groups:
         GROUPS[g](cfg)
+
+
+def depth_key(raw: np.ndarray) -> tuple:
+    """What numba compiles a depth kernel for: a raw image's (native-order dtype, C-contiguous)."""
+    return raw.dtype.newbyteorder("="), bool(raw.flags.c_contiguous)
+
+
+class BackgroundWarmUp:
+    """A warm run's kernels loaded from numba's cache in a thread of their own, started with the
+    run (``Replay``): the loading (about 0.25 s of one core, under the GIL but for LLVM's part)
+    then overlaps the static map, the log's opening and its first reads, when the other core
+    has little to do, instead of holding up the first frame. ``depth(key)`` adds a depth image
+    encoding's kernels (``warm_depth``; ``depth_key``) as soon as the log's first image of it is
+    read. ``wait(future)`` re-raises a failure (a damaged cache file) in the caller's thread."""
+
+    def __init__(self, cfg: MapConfig, groups):
+        self.cfg = cfg
+        self.pool = ThreadPoolExecutor(1, thread_name_prefix="ltmap-warmup")
+        self.common = self.pool.submit(warm_up, cfg, groups)
+        self.depths: dict[tuple, Future] = {}
+
+    def depth(self, key: tuple) -> Future:
+        if key not in self.depths:
+            self.depths[key] = self.pool.submit(warm_depth, self.cfg, *key)
+        return self.depths[key]
+
+    def close(self) -> None:
+        """No more jobs; one being run ends by itself (a kernel's loading cannot be stopped)."""
+        self.pool.shutdown(wait=False, cancel_futures=True)
 
 
 def cache_folder() -> Path:
