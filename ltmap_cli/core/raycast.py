@@ -747,7 +747,8 @@ def _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt):
             full |= np.int64(1) << q
     if full == 0:
         return full
-    db = find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1], block_coords[b, 2])
+    db = find_block(d_keys, d_vals, np.int64(block_coords[b, 0]), np.int64(block_coords[b, 1]),
+                    np.int64(block_coords[b, 2]))  # (int64: one find_block compiled, not one per int width)
     if db < 0:
         return full
     for q in range(8):
@@ -809,7 +810,8 @@ def quiet_count(logodds, n_blocks, lo_min, nfree, still, block_coords, d_keys, d
             nfree[b, q] = 0
         for w in range(8):
             still[b, w] = 0
-        db = find_block(d_keys, d_vals, block_coords[b, 0], block_coords[b, 1], block_coords[b, 2])
+        db = find_block(d_keys, d_vals, np.int64(block_coords[b, 0]), np.int64(block_coords[b, 1]),
+                        np.int64(block_coords[b, 2]))  # (int64: one find_block compiled, not one per int width)
         for off in range(BLOCK_VOXELS):
             if logodds[b, off] == lo32:
                 nfree[b, quarter_of(off)] += 1
@@ -822,7 +824,7 @@ def still_clear(d_from, d_n, d_coords, st, lt, o_keys, o_vals, still):
     """Clear the ``still`` bits (``quiet_count``) of the voxels with ST or LT in D blocks
     ``d_from`` to ``d_n`` - 1 (LT seeded into them, or D replaced)."""
     for db in range(d_from, d_n):
-        ob = find_block(o_keys, o_vals, d_coords[db, 0], d_coords[db, 1], d_coords[db, 2])
+        ob = find_block(o_keys, o_vals, np.int64(d_coords[db, 0]), np.int64(d_coords[db, 1]), np.int64(d_coords[db, 2]))
         if ob < 0:
             continue
         for off in range(BLOCK_VOXELS):
@@ -1159,7 +1161,7 @@ def depth_image_rays(
     with more blocks, with a set of the voxels' keys (``_depth_rays_pass``). A pixel that ends
     in the same voxel as one of its neighbours before it skips the lookup.
     """
-    by_block = True
+    by_block = np.bool_(True)  # (not the literal: numba would compile _depth_rays_pass once more for it, 2 s)
     while True:
         ends, kind, status = _depth_rays_pass(depth, unit_mm, fx, fy, cx, cy, T, max_range, ground_tol, fp_inv,
                                               fp_min, fp_max, use_fp, dedupe, inv_res, cap, by_block)  # fmt: skip

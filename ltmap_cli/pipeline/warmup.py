@@ -10,7 +10,7 @@ grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
 projective integration's (``depth16``, ``projective16``: 16UC1/mono16; ``depth32``,
 ``projective32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
 cache ``BackgroundCompile`` compiles the groups a run will need in child processes, one per
-group or two in one when the cores are few (``children_of``), in parallel with each other and
+child per core, the groups shared by their compiling time (``children_of``), in parallel with each other and
 with reading and checking the log (started at its first message, or, when it has raw depth
 images, at the first of them, whose pixels say which encoding's groups: the replay's
 ``_start_compile``), so that the first run on two cores waits for about half the compiling
@@ -318,22 +318,24 @@ def _removed_cache_file(path: Path, index: str | None, exc: BaseException) -> Ke
                             f"{done}; run the command again")  # fmt: skip
 
 
-# CPU seconds each group took to compile alone, its child's ~0.9 s of start-up left out (a 2-core
-# AMD EPYC VM, 2026-12-03, session 21; the 32-bit depth groups taken as the 16-bit ones): how the
-# children share the groups (``children_of``)
-COMPILE_S = {"rays": 6.5, "lists": 8.7, "maps": 7.8, "fused_scan": 1.1, "planner": 2.6, "depth16": 2.6,
-             "projective16": 13.8, "depth32": 2.6, "projective32": 13.8}  # fmt: skip
+# seconds each group took to compile alone in a child, its 0.35 s of start-up left out (a 2-core
+# Intel Xeon VM, 2026-12-04, session 30): how the children share the groups (``children_of``)
+COMPILE_S = {"rays": 7.2, "lists": 6.6, "maps": 6.0, "fused_scan": 1.0, "planner": 2.4, "depth16": 3.1,
+             "projective16": 10.6, "depth32": 3.3, "projective32": 10.7}  # fmt: skip
 
 
 def children_of(groups, cores: int) -> list[list[str]]:
-    """``groups`` shared among at most ``cores + 1`` child processes, the costliest group first,
-    each to the child with the least compiling so far (``COMPILE_S``). Each child costs its
-    start-up, and the children share the cores evenly, so the run waits for the last one: on 2
-    cores the house sample's four groups took 19.4 s in four children, 17.1 to 17.7 s in three."""
+    """``groups`` shared among at most ``cores`` child processes, the costliest group first, each
+    to the child with the least compiling so far (``COMPILE_S``). The children share the cores, so
+    the run waits for all of them: what counts is the compiling they do in all, and each child
+    adds its start-up and compiles again the kernels its groups share with another child's (the
+    grid's lookups, O's updates, the quiet blocks' counts). On 2 cores the house sample's five
+    groups took 19.4 to 19.7 s in two children, 21.5 to 21.7 s in three (session 30; with four
+    groups in session 21, three children had been faster than four)."""
     children: list[list[str]] = []
     load: list[float] = []
     for g in sorted(groups, key=lambda g: -COMPILE_S.get(g, 1.0)):
-        if len(children) < cores + 1:
+        if len(children) < max(cores, 1):
             children.append([g])
             load.append(COMPILE_S.get(g, 1.0))
             continue
