@@ -422,8 +422,9 @@ def test_a_first_run_waits_for_another_ones_compiling_instead_of_compiling_besid
             return 0
 
     monkeypatch.setattr(warmup.subprocess, "Popen", Child)
+    monkeypatch.setattr(warmup, "usable_cores", lambda: 2)  # (a child per core)
     first = BackgroundCompile(["rays", "maps"], folder=tmp_path)  # a first run: compiles, holds the lock
-    assert not first.waiting and spawned == [["maps"], ["rays"]]  # (the costlier first: COMPILE_S)
+    assert not first.waiting and spawned == [["rays"], ["maps"]]  # (the costlier first: COMPILE_S)
     second = BackgroundCompile(["rays", "maps"], folder=tmp_path)  # another, meanwhile: waits
     assert second.waiting and len(spawned) == 2
     threading.Timer(0.4, first.wait).start()  # the first's children end 0.4 s from now
