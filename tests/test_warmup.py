@@ -197,12 +197,29 @@ def test_a_failure_of_the_background_warm_up_is_the_runs(tmp_path, monkeypatch):
 
 def test_replay_groups():
     cfg = Config()
-    assert replay_groups(cfg.replay) == ["rays", "lists", "maps"]
-    assert replay_groups(cfg.replay, raw_depth=True) == ["rays", "lists", "maps", "depth16", "projective16"]
-    assert replay_groups(cfg.replay, raw_depth=True, projective=False) == ["rays", "lists", "maps", "depth16"]
+    assert replay_groups(cfg.replay) == ["rays", "maps"]
+    assert replay_groups(cfg.replay, lists=True) == ["rays", "lists", "maps"]
+    assert replay_groups(cfg.replay, raw_depth=True) == ["rays", "maps", "depth16", "projective16"]
+    assert replay_groups(cfg.replay, raw_depth=True, projective=False) == ["rays", "maps", "depth16"]
     cfg.replay.mcap_out, cfg.replay.plan_goal = True, [1.0, 2.0]
-    assert replay_groups(cfg.replay) == ["rays", "lists", "maps", "fused_scan", "planner"]
-    assert set(replay_groups(cfg.replay, raw_depth=True)) <= set(GROUPS) == set(COMPILE_S)
+    assert replay_groups(cfg.replay) == ["rays", "maps", "fused_scan", "planner"]
+    assert set(replay_groups(cfg.replay, raw_depth=True, lists=True)) <= set(GROUPS) == set(COMPILE_S)
+
+
+def test_lists_are_needed_only_by_sensors_whose_boxes_can_exceed_the_masks_limit():
+    """By hand, at 0.05 m (blocks of 0.4 m; the limit LISTED_VOXELS_MAX_BLOCKS = 262,144): a depth
+    camera cut at 8 m spans at most ceil(16 / 0.4) + 2 = 42 blocks a side, 74,088 blocks; at 30 m,
+    152^3; a level laser of 70 m, 352^2 x 2 = 247,808; of 80 m, 402^2 x 2 = 323,208; at 0.02 m
+    (blocks of 0.16 m) an 8 m camera, 102^3."""
+    from ltmap_cli.core.projective import LISTED_VOXELS_MAX_BLOCKS
+    from ltmap_cli.pipeline.warmup import box_blocks, lists_needed
+
+    assert LISTED_VOXELS_MAX_BLOCKS == 262_144
+    assert box_blocks(8.0, 0.05) == 42**3 and not lists_needed(8.0, 0.05)
+    assert box_blocks(30.0, 0.05) == 152**3 and lists_needed(30.0, 0.05)
+    assert box_blocks(70.0, 0.05, planar=True) == 352**2 * 2 and not lists_needed(70.0, 0.05, planar=True)
+    assert box_blocks(80.0, 0.05, planar=True) == 402**2 * 2 and lists_needed(80.0, 0.05, planar=True)
+    assert box_blocks(8.0, 0.02) == 102**3 and lists_needed(8.0, 0.02)
 
 
 def test_children_share_the_groups_by_their_compiling():
@@ -333,12 +350,14 @@ def test_a_first_run_compiles_each_kernel_once(tmp_path):
     assert dense.replace("Array(uint64, 1, 'C', False, aligned=True), Array(int64", "none, Array(int64", 1) == sparse
 
 
-def _first_run_groups(tmp_path, monkeypatch, name, msgs):
-    """The groups a first run (``kernels_cached`` False) hands its compiling children, each time
-    it starts some (recorded, not started: this process's kernels are compiled already)."""
+def _first_run_groups(tmp_path, monkeypatch, name, msgs, settings=None, cached=lambda groups=(): False):
+    """The groups a first run (``kernels_cached`` False; or as ``cached`` says) hands its compiling
+    children, each time it starts some (recorded, not started: this process's kernels are
+    compiled already), with the ``settings`` (dotted: value) given."""
     from logfactory import write_log
 
     import ltmap_cli.pipeline.replay as replay_mod
+    from ltmap_cli.config import set_dotted
     from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 
     started = []
@@ -355,10 +374,12 @@ def _first_run_groups(tmp_path, monkeypatch, name, msgs):
         def stop(self):
             pass
 
-    monkeypatch.setattr(replay_mod, "kernels_cached", lambda: False)
+    monkeypatch.setattr(replay_mod, "kernels_cached", cached)
     monkeypatch.setattr(replay_mod, "BackgroundCompile", Recorded)
     cfg = Config()
     cfg.replay.plots = False
+    for key, value in (settings or {}).items():
+        set_dotted(cfg, key, value)
     log = write_log(tmp_path / f"{name}.mcap", "mcap-ros2", msgs)
     run = Replay(cfg, ReplayRequest([log], tmp_path / name))
     run.run()
@@ -386,7 +407,7 @@ def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path,
             out.append(image("/cam/depth/image_raw", t + 1, px, encoding=encoding, frame_id="cam"))
         return out
 
-    base = ["rays", "lists", "maps"]
+    base = ["rays", "maps"]
     got = _first_run_groups(tmp_path, monkeypatch, "d32", place + depth_msgs("32FC1"))
     assert got == [base + ["depth32", "projective32"]]
     got = _first_run_groups(tmp_path, monkeypatch, "d16", place + depth_msgs("16UC1"))
@@ -394,6 +415,60 @@ def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path,
     scans = [m for m in depth_msgs("16UC1") if m.topic == "/scan"]
     got = _first_run_groups(tmp_path, monkeypatch, "scans", place + scans)
     assert got == [base]
+    # a depth camera cut at 30 m: its frames' boxes may be too big for masks (lists_needed)
+    got = _first_run_groups(tmp_path, monkeypatch, "d16far", place + depth_msgs("16UC1"),
+                            {"map.sensor.depth_max_range": 30.0})  # fmt: skip
+    assert got == [["rays", "lists", "maps", "depth16", "projective16"]]
+    # a warm run of it whose cache lacks the lists group (the runs before never needed it):
+    # its children compile that group alone
+    got = _first_run_groups(tmp_path, monkeypatch, "warm_far", place + depth_msgs("16UC1"),
+                            {"map.sensor.depth_max_range": 30.0}, cached=lambda groups=(): "lists" not in groups)  # fmt: skip
+    assert got == [["lists"]]
+    got = _first_run_groups(tmp_path, monkeypatch, "warm_near", place + depth_msgs("16UC1"),
+                            cached=lambda groups=(): "lists" not in groups)  # fmt: skip
+    assert got == []
+
+
+@pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
+def test_a_scan_reaching_far_warms_the_lists_group_before_its_frame_is_cast(tmp_path, monkeypatch):
+    """A laser whose range_max makes its box too big for masks (80 m at 0.05 m) has its voxels
+    listed: the lists group is warmed at its first frame, before it is cast; one of 10 m is not."""
+    from logfactory import scan, tf, write_log
+
+    import ltmap_cli.pipeline.replay as replay_mod
+    from ltmap_cli.io.frames import ScanFrame
+    from ltmap_cli.pipeline.rays import FrameCaster
+    from ltmap_cli.pipeline.replay import Replay, ReplayRequest
+
+    seen: list = []
+    real_cast, real_up = FrameCaster.cast, replay_mod.warm_up
+
+    def cast(self, frame, T, robot):
+        seen.append(("cast", isinstance(frame, ScanFrame)))
+        return real_cast(self, frame, T, robot)
+
+    def up(cfg, groups):
+        seen.append(("warm", tuple(groups)))
+        real_up(cfg, groups)
+
+    monkeypatch.setattr(FrameCaster, "cast", cast)
+    monkeypatch.setattr(replay_mod, "warm_up", up)
+    monkeypatch.setattr(replay_mod, "kernels_cached", lambda groups=(): True)
+    S = 10**9
+    for range_max, lists in ((80.0, True), (10.0, False)):
+        seen.clear()
+        msgs = [tf(S // 2, [("map", "laser", (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0))], static=True)]
+        msgs += [scan("/scan", S + i * S // 10, [2.0] * 90 + [float("inf")] * 10, range_max=range_max) for i in range(3)]
+        log = write_log(tmp_path / f"scan{range_max:g}.mcap", "mcap-ros2", msgs)
+        cfg = Config()
+        cfg.replay.plots = False
+        run = Replay(cfg, ReplayRequest([log], tmp_path / f"out{range_max:g}"))
+        run.threads = False
+        run.run()
+        warmed = [s for s in seen if s == ("warm", ("lists",))]
+        assert len(warmed) == (1 if lists else 0)
+        if lists:
+            assert seen.index(warmed[0]) < seen.index(("cast", True))
 
 
 def test_a_first_run_waits_for_another_ones_compiling_instead_of_compiling_beside_it(tmp_path, monkeypatch):

@@ -31,7 +31,7 @@ from ..errors import InputError, LtmapWarning, MapFileError, RunInterrupted, Tra
 from ..io.atomic import write_text_atomic
 from ..io.camera_file import load_camera_infos
 from ..io.decode import RawDepthFrame
-from ..io.frames import DepthFrame, OdometrySample, TfSample, frame_nbytes
+from ..io.frames import DepthFrame, OdometrySample, ScanFrame, TfSample, frame_nbytes
 from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
@@ -66,6 +66,7 @@ from .warmup import (
     BackgroundWarmUp,
     depth_key,
     kernels_cached,
+    lists_needed,
     replay_groups,
     warm_depth,
     warm_depth_points,
@@ -180,6 +181,8 @@ class Replay:
         self.sinks: list[Sink] = []
         self._last_progress = 0.0
         self._compile: BackgroundCompile | None = None
+        self._compile_groups: list[str] | None = None  # what a warm run's children compile (a group it lacks)
+        self._lists = False  # whether the run calls the lists group (lists_needed; a long-range scan turns it on)
         self._loading: BackgroundWarmUp | None = None  # a warm run's kernels, loaded from the run's start
         self._compile_pending = False  # a first run whose compiling children are not started yet
         self._cold_depth = False  # ... and which will want the depth kernels
@@ -289,9 +292,17 @@ class Replay:
             run.log_start_ns = logs.start_ns
             start_ns, end_ns = self._window(logs)
             self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
+            # the voxels listed, not masked: depth images and clouds whose box may be too big (a
+            # long depth_max_range, a fine resolution); scans say at their first frame (_dispatch)
+            self._lists = bool(sel.depths or sel.clouds) and lists_needed(cfg.map.sensor.depth_max_range,
+                                                                         cfg.map.resolution)  # fmt: skip
             if not cached:  # the first run: compile while the log is read and checked, from
                 self._cold_depth = bool(sel.depths) and self.fast  # its first depth image or frame (_start_compile)
                 self._compile_pending = True
+            elif self._lists and not kernels_cached(["lists"]):  # compiled by no run before (one without)
+                self._compile_groups, self._compile_pending = ["lists"], True
+            elif self._lists and self._loading is not None:
+                self._loading.add(["lists"])
             for s in self.sinks:
                 s.start(run, tf)
             self.scheduler = Scheduler(tf, wait_ns=int(cfg.replay.tf_wait * NS), timer=timer,
@@ -511,6 +522,9 @@ class Replay:
                 self.counts.angle_max_off[event.topic] += 1
             if not self._warm:
                 self._warm_up()
+            if not self._lists and isinstance(event.frame, ScanFrame) and lists_needed(
+                    event.frame.range_max, self.cfg.map.resolution, planar=True):  # fmt: skip
+                self._warm_lists()
             raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
             if raw is not None and (key := depth_key(raw)) not in self._warm_depth:
                 self._warm_depth.add(key)
@@ -564,8 +578,8 @@ class Replay:
         bits = "32" if isinstance(item, RawDepthFrame) and item.raw.dtype.kind == "f" else "16"
         if self._cold_depth:  # (what the children compile: C-contiguous images of that encoding)
             self._compiled_depth = (np.dtype(np.float32 if bits == "32" else np.uint16), True)
-        self._compile = BackgroundCompile(replay_groups(cfg.replay, self._cold_depth,
-                                                        cfg.map.sensor.depth_integration == "projective", bits))
+        self._compile = BackgroundCompile(self._compile_groups or replay_groups(
+            cfg.replay, self._cold_depth, cfg.map.sensor.depth_integration == "projective", bits, lists=self._lists))
 
     def _warm_up(self) -> None:
         """The kernels' first calls, before the first frame is cast: so a log whose frames are all
@@ -582,9 +596,21 @@ class Replay:
                     None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))
                 self._compile_wait_s = time.perf_counter() - t0
             if self._loading is not None:  # (loading since the run began)
+                if self._compile_groups:  # (compiled just now)
+                    self._loading.add(self._compile_groups)
                 self._loading.common.result()
-            else:
-                warm_up(self.cfg.map, replay_groups(self.cfg.replay))  # (the depth kernels: at their first frame)
+            else:  # (the depth kernels: at their first frame)
+                warm_up(self.cfg.map, replay_groups(self.cfg.replay, lists=self._lists))
+
+    def _warm_lists(self) -> None:
+        """A scan that reaches far enough to have its voxels listed (a laser of more than 70 m
+        at 0.05 m): the lists group's kernels, loaded, or compiled here the first time (7 s; the
+        progress says so) before its frame is cast."""
+        self._lists = True
+        with self.timer("warmup"):
+            if not kernels_cached(["lists"]):
+                self._report_progress(None, force=True, phase=COMPILING)
+            warm_up(self.cfg.map, ["lists"])
 
     def _integrate(self, placed: Placed, cast: CastFrame, wait_s: float | None) -> None:
         run, timer, c = self.state, self.timer, self.counts

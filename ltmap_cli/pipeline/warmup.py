@@ -4,22 +4,22 @@ minute of CPU in one process), then loads them from its disk cache (well under a
 Compiling is split into groups that share almost no kernel: ``rays`` (the rays of points and
 scans, the voxels they pass as block masks, the rays' tails of depth frames too, their updates
 of O), ``lists`` (the voxels rays pass listed, and their updates: frames whose box is too big for
-block masks), ``maps`` (the tick rules, the projection, the snapshots' tree walk, the events'
-grouping), ``fused_scan`` (the virtual scan of ``--mcap``),
-``planner`` (``--plan-goal``) and two per depth image encoding, the depth kernel's and the
-projective integration's (``depth16``, ``projective16``: 16UC1/mono16; ``depth32``,
-``projective32``: 32FC1); a run warms only the groups it calls (``replay_groups``). On a cold
-cache ``BackgroundCompile`` compiles the groups a run will need in child processes, one per
-child per core, the groups shared by their compiling time (``children_of``), in parallel with each other and
-with reading and checking the log (started at its first message, or, when it has raw depth
-images, at the first of them, whose pixels say which encoding's groups: the replay's
-``_start_compile``), so that the first run on two cores waits for about half the compiling
-instead of all of it, and a log that fails its checks (a missing transform) fails before any
-compiling is waited for. The children write
-numba's cache; the replay then loads the kernels from it. A kernel that two groups call is
-compiled in both children, so each group makes its map without the others' kernels (``maps``
-seeds D instead of casting rays); only the grid's block lookups (0.3 s) and O's updates (2 s)
-are in two. The depth groups leave the voxels rays pass to ``rays``, which every replay warms.
+block masks; only for sensors whose rays reach that far, ``lists_needed``), ``maps`` (the tick
+rules, the projection, the snapshots' tree walk, the events' grouping), ``fused_scan`` (the
+virtual scan of ``--mcap``), ``planner`` (``--plan-goal``) and two per depth image encoding, the
+depth kernel's and the projective integration's (``depth16``, ``projective16``: 16UC1/mono16;
+``depth32``, ``projective32``: 32FC1); a run warms only the groups it calls
+(``replay_groups``). On a cold cache ``BackgroundCompile`` compiles the groups a run will need
+in child processes, a child per core, the groups shared by their compiling time
+(``children_of``), in parallel with each other and with reading and checking the log (started
+at its first message, or, when it has raw depth images, at the first of them, whose pixels say
+which encoding's groups: the replay's ``_start_compile``), so that the first run on two cores
+waits for about half the compiling instead of all of it, and a log that fails its checks (a
+missing transform) fails before any compiling is waited for. The children write numba's cache;
+the replay then loads the kernels from it. A kernel that two groups call is compiled in both
+children, so each group makes its map without the others' kernels (``maps`` seeds D instead of
+casting rays); only the grid's block lookups and O's updates are in two. The depth groups leave
+the voxels rays pass to ``rays``, which every replay warms.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import importlib
+import math
 import os
 import pkgutil
 import subprocess
@@ -41,8 +42,10 @@ from numba.core.registry import CPUDispatcher
 from .. import core
 from ..core import raycast
 from ..core.config import MapConfig
+from ..core.grid import BLOCK
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
+from ..core.projective import LISTED_VOXELS_MAX_BLOCKS
 from ..core.sensors import depth_to_points, transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -166,12 +169,15 @@ GROUPS = {"rays": warm_rays, "lists": warm_lists, "maps": warm_maps, "fused_scan
           "projective32": lambda c: warm_depth(c, np.float32, parts=("projection",))}  # fmt: skip
 
 
-def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits: str = "16") -> list[str]:
-    """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays``,
-    ``lists`` and ``maps`` always, ``fused_scan`` with ``--mcap``, ``planner`` with ``--plan-goal``, and with
-    ``raw_depth`` (raw depth images) ``depth16`` (``bits`` "32": ``depth32``), and with
-    ``projective`` (``map.sensor.depth_integration``) ``projective16`` (``projective32``) too."""
-    groups = ["rays", "lists", "maps"]
+def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits: str = "16",
+                  lists: bool = False) -> list[str]:
+    """The groups a replay with settings ``replay`` (``config.ReplayConfig``) calls: ``rays`` and
+    ``maps`` always, ``lists`` with ``lists`` (a sensor whose frames' boxes may be too big for
+    block masks: ``lists_needed``), ``fused_scan`` with ``--mcap``, ``planner`` with
+    ``--plan-goal``, and with ``raw_depth`` (raw depth images) ``depth16`` (``bits`` "32":
+    ``depth32``), and with ``projective`` (``map.sensor.depth_integration``) ``projective16``
+    (``projective32``) too."""
+    groups = ["rays", "lists", "maps"] if lists else ["rays", "maps"]
     if replay.mcap_out:
         groups.append("fused_scan")
     if replay.plan_goal:
@@ -179,6 +185,22 @@ def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits
     if raw_depth:
         groups += [f"depth{bits}", f"projective{bits}"] if projective else [f"depth{bits}"]
     return groups
+
+
+def box_blocks(reach: float, resolution: float, planar: bool = False) -> int:
+    """The most blocks the box of a frame can hold (the voxels of its sensor and of its rays'
+    ends, ``core.projective.ends_box``) when its rays reach at most ``reach`` m: a cube, or with
+    ``planar`` (a level scan) a square two blocks high."""
+    side = math.ceil(2.0 * reach / (resolution * BLOCK)) + 2  # (+ 2: the box's ends on blocks)
+    return side * side * (2 if planar else side)
+
+
+def lists_needed(reach: float, resolution: float, planar: bool = False) -> bool:
+    """Whether such a frame may have its voxels listed (a box of more than
+    ``LISTED_VOXELS_MAX_BLOCKS`` blocks: the ``lists`` group's kernels, 6.6 s of a first run's
+    compiling). At 0.05 m: not a depth camera or cloud cut at 8 m (42^3 blocks), nor a laser of
+    up to 70 m (362^2 x 2); a cloud cut at 30 m or a laser of 80 m, yes."""
+    return box_blocks(reach, resolution, planar) > LISTED_VOXELS_MAX_BLOCKS
 
 
 def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
@@ -205,6 +227,11 @@ class BackgroundWarmUp:
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="ltmap-warmup")
         self.common = self.pool.submit(warm_up, cfg, groups)
         self.depths: dict[tuple, Future] = {}
+
+    def add(self, groups) -> Future:
+        """Load ``groups`` too, after those before (``lists``, once the log says it is needed)."""
+        self.common = self.pool.submit(lambda before: (before.result(), warm_up(self.cfg, groups)), self.common)
+        return self.common
 
     def depth(self, key: tuple) -> Future:
         if key not in self.depths:
@@ -237,7 +264,7 @@ def _core_kernels():
                 yield obj
 
 
-def kernels_cached() -> bool:
+def kernels_cached(groups=()) -> bool:
     """Whether numba's disk cache holds the map's kernels for the code as it is (else the first
     run compiles them), as numba itself decides: a kernel's index (``*.nbi``, in
     ``cache_folder()``) counts when it was written by the same numba for the same source text
@@ -250,7 +277,9 @@ def kernels_cached() -> bool:
     are good, and a kernel never compiled has none; an index counts only with code for this
     process's target (numba's key: CPU and features). An index that cannot be read (a cache
     copied in part, a damaged disk: numba writes them whole) is removed, so numba compiles that
-    kernel again instead of failing on it in every run."""
+    kernel again instead of failing on it in every run. Of ``groups``, those that a first run
+    may leave out (``GROUP_PROBES``: ``lists``) count with their own kernel's index only: the
+    module's other kernels say nothing of it."""
     try:
         from numba.core.registry import cpu_target
 
@@ -260,21 +289,33 @@ def kernels_cached() -> bool:
         target = cpu_target.target_context.codegen().magic_tuple()
         fresh: dict[str, bool] = {}
         for k in _core_kernels():
-            f = k._cache._cache_file
-            if not os.path.exists(f._index_path) or fresh.get(k.__module__):
-                continue
-            try:  # ({}: another numba, or another source text)
-                good = any(key[1] == target for key in f._load_index())
-            except Exception:  # (unpickling a damaged file: any of several errors)
-                with contextlib.suppress(OSError):
-                    os.remove(f._index_path)
-                good = False  # (to compile, in the first run's children)
-            fresh[k.__module__] = good
-        return bool(fresh) and all(fresh.values())
+            if os.path.exists(k._cache._cache_file._index_path) and not fresh.get(k.__module__):
+                fresh[k.__module__] = _index_good(k, target)
+        probes = [k for g in groups for k in GROUP_PROBES.get(g, ())]
+        return bool(fresh) and all(fresh.values()) and all(_index_good(k, target) for k in probes)
     except (AttributeError, ImportError):  # numba's internals moved: compare times, as numba did once
         folder = cache_folder()
         newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None) if folder.is_dir() else None
         return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
+
+
+def _index_good(kernel, target) -> bool:
+    """Whether ``kernel``'s index (numba's, in the cache) was written for this source text and
+    holds code for ``target``; one that cannot be read is removed (numba compiles it again)."""
+    f = kernel._cache._cache_file
+    if not os.path.exists(f._index_path):
+        return False
+    try:  # ({}: another numba, or another source text)
+        return any(key[1] == target for key in f._load_index())
+    except Exception:  # (unpickling a damaged file: any of several errors)
+        with contextlib.suppress(OSError):
+            os.remove(f._index_path)
+        return False  # (to compile, in the first run's children)
+
+
+# the groups a first run compiles only when it calls them (``replay_groups``), and a kernel of
+# each that only they compile: what ``kernels_cached`` reads for them
+GROUP_PROBES = {"lists": (raycast.frame_voxels,)}
 
 
 _NUMBA_LOADS = ("_load_index", "_load_data")  # numba.core.caching.IndexDataCacheFile's readers
