@@ -350,10 +350,12 @@ def test_a_first_run_compiles_each_kernel_once(tmp_path):
     assert dense.replace("Array(uint64, 1, 'C', False, aligned=True), Array(int64", "none, Array(int64", 1) == sparse
 
 
-def _first_run_groups(tmp_path, monkeypatch, name, msgs, settings=None, cached=lambda groups=(): False):
+def _first_run_groups(tmp_path, monkeypatch, name, msgs, settings=None, cached=lambda groups=(): False,
+                      phases=None):
     """The groups a first run (``kernels_cached`` False; or as ``cached`` says) hands its compiling
     children, each time it starts some (recorded, not started: this process's kernels are
-    compiled already), with the ``settings`` (dotted: value) given."""
+    compiled already), with the ``settings`` (dotted: value) given; the progress's phases into
+    ``phases``."""
     from logfactory import write_log
 
     import ltmap_cli.pipeline.replay as replay_mod
@@ -381,7 +383,8 @@ def _first_run_groups(tmp_path, monkeypatch, name, msgs, settings=None, cached=l
     for key, value in (settings or {}).items():
         set_dotted(cfg, key, value)
     log = write_log(tmp_path / f"{name}.mcap", "mcap-ros2", msgs)
-    run = Replay(cfg, ReplayRequest([log], tmp_path / name))
+    run = Replay(cfg, ReplayRequest([log], tmp_path / name),
+                 progress=None if phases is None else (lambda p: phases.append(p.phase)))  # fmt: skip
     run.run()
     return started
 
@@ -427,6 +430,17 @@ def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path,
     got = _first_run_groups(tmp_path, monkeypatch, "warm_near", place + depth_msgs("16UC1"),
                             cached=lambda groups=(): "lists" not in groups)  # fmt: skip
     assert got == []
+    # a warm run of a 32FC1 log whose cache holds the 16UC1 depth kernels only (the logs before
+    # were 16UC1): children for that encoding's groups at its first image, the progress saying so
+    import ltmap_cli.pipeline.replay as replay_mod
+
+    monkeypatch.setattr(replay_mod, "groups_cached", lambda groups, layout="C": not any(g.endswith("32") for g in groups))
+    for encoding, groups in (("32FC1", [["depth32", "projective32"]]), ("16UC1", [])):
+        phases: list = []
+        got = _first_run_groups(tmp_path, monkeypatch, f"warm{encoding}", place + depth_msgs(encoding),
+                                cached=lambda groups=(): True, phases=phases)  # fmt: skip
+        assert got == groups
+        assert any(p and p.startswith("compiling kernels") for p in phases) == bool(groups)
 
 
 @pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")

@@ -64,7 +64,9 @@ from .timing import StageTimer
 from .warmup import (
     BackgroundCompile,
     BackgroundWarmUp,
+    depth_groups,
     depth_key,
+    groups_cached,
     kernels_cached,
     lists_needed,
     replay_groups,
@@ -183,6 +185,7 @@ class Replay:
         self._compile: BackgroundCompile | None = None
         self._compile_groups: list[str] | None = None  # what a warm run's children compile (a group it lacks)
         self._lists = False  # whether the run calls the lists group (lists_needed; a long-range scan turns it on)
+        self._depth_cached: dict[tuple, bool] = {}  # depth_key -> its kernels in the cache (a warm run's groups_cached)
         self._loading: BackgroundWarmUp | None = None  # a warm run's kernels, loaded from the run's start
         self._compile_pending = False  # a first run whose compiling children are not started yet
         self._cold_depth = False  # ... and which will want the depth kernels
@@ -343,8 +346,9 @@ class Replay:
                         last_stamp[topic], last_log[topic] = item.stamp_ns, log_ns
                     if self._compile_pending and (not self._cold_depth or isinstance(item, RawDepthFrame)):
                         self._start_compile(item)
-                    if self._loading is not None and self.fast and isinstance(item, RawDepthFrame):
-                        self._loading.depth(depth_key(item.raw))  # (its kernels loaded before its turn)
+                    if self._loading is not None and self.fast and isinstance(item, RawDepthFrame) \
+                            and self._depth_is_cached(key := depth_key(item.raw)):  # fmt: skip
+                        self._loading.depth(key)  # (its kernels loaded before its turn)
                     self._feed_localization(log_ns)
                     for event in self.scheduler.feed(topic, log_ns, item):
                         self._dispatch(event)
@@ -528,13 +532,7 @@ class Replay:
             raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
             if raw is not None and (key := depth_key(raw)) not in self._warm_depth:
                 self._warm_depth.add(key)
-                if self._compile is not None and key != self._compiled_depth:  # (a first run; not what the
-                    self._report_progress(None, force=True, phase=COMPILING)  # children compiled: here, now)
-                with self.timer("warmup"):
-                    if self._loading is not None:
-                        self._loading.depth(key).result()
-                    else:
-                        warm_depth(self.cfg.map, *key)
+                self._depth_kernels(key)
             elif raw is None and isinstance(event.frame, (DepthFrame, RawDepthFrame)) and "points" not in self._warm_depth:
                 self._warm_depth.add("points")  # (the plain path: float32 metres as points)
                 with self.timer("warmup"):
@@ -581,6 +579,46 @@ class Replay:
         self._compile = BackgroundCompile(self._compile_groups or replay_groups(
             cfg.replay, self._cold_depth, cfg.map.sensor.depth_integration == "projective", bits, lists=self._lists))
 
+    def _depth_is_cached(self, key: tuple) -> bool:
+        if key not in self._depth_cached:
+            self._depth_cached[key] = groups_cached(depth_groups(key, self._projective()), "C" if key[1] else "A")
+        return self._depth_cached[key]
+
+    def _projective(self) -> bool:
+        return self.cfg.map.sensor.depth_integration == "projective"
+
+    def _depth_kernels(self, key: tuple) -> None:
+        """A depth image encoding's kernels, before its first frame is cast: loaded (a warm run's
+        since its first image was read), or compiled by the first run's children. An encoding no
+        run compiled before (a 32FC1 log after 16UC1 ones: 14 s of compiling, which the progress
+        showed nothing of) is compiled in children of its own, the progress saying so; a layout
+        the children do not compile (a strided image), here, saying so."""
+        if self._compile is not None:  # a first run: its children compiled their encoding
+            if key != self._compiled_depth:
+                self._report_progress(None, force=True, phase=COMPILING)
+        elif not self._depth_is_cached(key):
+            if key[1]:
+                self._compile = BackgroundCompile(depth_groups(key, self._projective()))
+                self._compiled_depth = key
+                with self.timer("warmup"):
+                    self._wait_compile()
+            else:
+                self._report_progress(None, force=True, phase=COMPILING)
+        with self.timer("warmup"):
+            if self._loading is not None:
+                self._loading.depth(key).result()
+            else:
+                warm_depth(self.cfg.map, *key)
+
+    def _wait_compile(self) -> None:
+        """Wait for the compiling children, the progress saying how many groups have ended."""
+        self._report_progress(None, force=True, phase=COMPILING + (
+            ": waiting for another ltmap's compiling" if self._compile.waiting else ""))
+        t0 = time.perf_counter()
+        self._compile.wait(lambda ended, total: self._report_progress(
+            None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))
+        self._compile_wait_s += time.perf_counter() - t0
+
     def _warm_up(self) -> None:
         """The kernels' first calls, before the first frame is cast: so a log whose frames are all
         skipped fails before any compiling is waited for, and no frame's time includes it."""
@@ -589,14 +627,11 @@ class Replay:
             self._start_compile(None)
         with self.timer("warmup"):
             if self._compile is not None:
-                self._report_progress(None, force=True, phase=COMPILING + (
-                    ": waiting for another ltmap's compiling" if self._compile.waiting else ""))
-                t0 = time.perf_counter()
-                self._compile.wait(lambda ended, total: self._report_progress(
-                    None, force=True, phase=f"{COMPILING}: {ended} of {total} kernel groups compiled"))
-                self._compile_wait_s = time.perf_counter() - t0
+                self._wait_compile()
+            if self._compile_groups:  # a warm run's group no run compiled before: compiled just now
+                self._compile = None  # (its children ended: a depth encoding's may come, _depth_kernels)
             if self._loading is not None:  # (loading since the run began)
-                if self._compile_groups:  # (compiled just now)
+                if self._compile_groups:
                     self._loading.add(self._compile_groups)
                 self._loading.common.result()
             else:  # (the depth kernels: at their first frame)

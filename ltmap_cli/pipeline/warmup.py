@@ -45,7 +45,7 @@ from ..core.config import MapConfig
 from ..core.grid import BLOCK
 from ..core.layers import LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
-from ..core.projective import LISTED_VOXELS_MAX_BLOCKS
+from ..core.projective import LISTED_VOXELS_MAX_BLOCKS, depth_projection_blocks
 from ..core.sensors import depth_to_points, transform_points
 from ..errors import KernelCacheError
 from .executor import usable_cores
@@ -277,9 +277,8 @@ def kernels_cached(groups=()) -> bool:
     are good, and a kernel never compiled has none; an index counts only with code for this
     process's target (numba's key: CPU and features). An index that cannot be read (a cache
     copied in part, a damaged disk: numba writes them whole) is removed, so numba compiles that
-    kernel again instead of failing on it in every run. Of ``groups``, those that a first run
-    may leave out (``GROUP_PROBES``: ``lists``) count with their own kernel's index only: the
-    module's other kernels say nothing of it."""
+    kernel again instead of failing on it in every run. ``groups``: and those of them that a
+    run may call when no run before did (``GROUP_PROBES``: ``groups_cached``)."""
     try:
         from numba.core.registry import cpu_target
 
@@ -291,31 +290,63 @@ def kernels_cached(groups=()) -> bool:
         for k in _core_kernels():
             if os.path.exists(k._cache._cache_file._index_path) and not fresh.get(k.__module__):
                 fresh[k.__module__] = _index_good(k, target)
-        probes = [k for g in groups for k in GROUP_PROBES.get(g, ())]
-        return bool(fresh) and all(fresh.values()) and all(_index_good(k, target) for k in probes)
+        return bool(fresh) and all(fresh.values()) and groups_cached(groups)
     except (AttributeError, ImportError):  # numba's internals moved: compare times, as numba did once
         folder = cache_folder()
         newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None) if folder.is_dir() else None
         return newest is not None and newest >= max(f.stat().st_mtime for f in CORE.glob("*.py"))
 
 
-def _index_good(kernel, target) -> bool:
+def groups_cached(groups, layout: str = "C") -> bool:
+    """Whether the cache holds code for this target of each of ``groups`` that a run calls only
+    for some logs (``GROUP_PROBES``: a kernel that only it compiles, for the encoding of its
+    images, with ``layout`` "C" or "A": a strided image): the module's other kernels say nothing
+    of them (the lists group after runs that never needed it; the 32FC1 depth kernels after
+    16UC1 logs only)."""
+    try:
+        from numba.core.registry import cpu_target
+
+        target = cpu_target.target_context.codegen().magic_tuple()
+        return all(_index_good(k, target, dtype, layout) for g in groups for k, dtype in GROUP_PROBES.get(g, ()))
+    except (AttributeError, ImportError):  # (numba's internals moved: kernels_cached's times only)
+        return True
+
+
+def _index_good(kernel, target, dtype=None, layout: str = "C") -> bool:
     """Whether ``kernel``'s index (numba's, in the cache) was written for this source text and
-    holds code for ``target``; one that cannot be read is removed (numba compiles it again)."""
+    holds code for ``target`` (with ``dtype``, for a first argument of that dtype and ``layout``);
+    one that cannot be read is removed (numba compiles it again)."""
     f = kernel._cache._cache_file
     if not os.path.exists(f._index_path):
         return False
     try:  # ({}: another numba, or another source text)
-        return any(key[1] == target for key in f._load_index())
+        keys = list(f._load_index())
     except Exception:  # (unpickling a damaged file: any of several errors)
         with contextlib.suppress(OSError):
             os.remove(f._index_path)
         return False  # (to compile, in the first run's children)
+    want = None if dtype is None else np.dtype(dtype).name
+    return any(key[1] == target and (want is None or (str(getattr(key[0][0], "dtype", "")) == want
+                                                      and getattr(key[0][0], "layout", "") == layout))
+               for key in keys)  # fmt: skip
 
 
-# the groups a first run compiles only when it calls them (``replay_groups``), and a kernel of
-# each that only they compile: what ``kernels_cached`` reads for them
-GROUP_PROBES = {"lists": (raycast.frame_voxels,)}
+# the groups a run calls only for some logs (``replay_groups``), and a kernel that only each
+# compiles, with the dtype of its first argument (a depth image's): what ``groups_cached`` reads
+GROUP_PROBES = {
+    "lists": ((raycast.frame_voxels, None),),
+    "depth16": ((raycast.depth_image_rays, np.uint16),),
+    "projective16": ((depth_projection_blocks, np.uint16),),
+    "depth32": ((raycast.depth_image_rays, np.float32),),
+    "projective32": ((depth_projection_blocks, np.float32),),
+}
+
+
+def depth_groups(key: tuple, projective_integration: bool) -> list[str]:
+    """The groups of a depth image encoding (``depth_key``): its depth kernel's, and with
+    projective integration its projection's."""
+    bits = "32" if np.dtype(key[0]).kind == "f" else "16"
+    return [f"depth{bits}", f"projective{bits}"] if projective_integration else [f"depth{bits}"]
 
 
 _NUMBA_LOADS = ("_load_index", "_load_data")  # numba.core.caching.IndexDataCacheFile's readers
