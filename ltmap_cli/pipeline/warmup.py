@@ -198,8 +198,9 @@ def box_blocks(reach: float, resolution: float, planar: bool = False) -> int:
 def lists_needed(reach: float, resolution: float, planar: bool = False) -> bool:
     """Whether such a frame may have its voxels listed (a box of more than
     ``LISTED_VOXELS_MAX_BLOCKS`` blocks: the ``lists`` group's kernels, 6.6 s of a first run's
-    compiling). At 0.05 m: not a depth camera or cloud cut at 8 m (42^3 blocks), nor a laser of
-    up to 70 m (362^2 x 2); a cloud cut at 30 m or a laser of 80 m, yes."""
+    compiling). At 0.05 m: not a depth camera or cloud cut at 8 m (42^3 blocks), nor a level
+    laser of up to 70 m (352^2 x 2); a cloud cut at 30 m or a laser of 80 m, yes. (A laser tilted
+    far from level may still list its voxels: numba then compiles them where they are called.)"""
     return box_blocks(reach, resolution, planar) > LISTED_VOXELS_MAX_BLOCKS
 
 
@@ -220,7 +221,8 @@ class BackgroundWarmUp:
     then overlaps the static map, the log's opening and its first reads, when the other core
     has little to do, instead of holding up the first frame. ``depth(key)`` adds a depth image
     encoding's kernels (``warm_depth``; ``depth_key``) as soon as the log's first image of it is
-    read. ``wait(future)`` re-raises a failure (a damaged cache file) in the caller's thread."""
+    read. A job's future re-raises its failure (a damaged cache file) in the thread that asks
+    for its ``result()``."""
 
     def __init__(self, cfg: MapConfig, groups):
         self.cfg = cfg
