@@ -683,7 +683,7 @@ class _QuietBlocks:
         first = self.d_blocks if self.d is d and self.d_blocks >= 0 else 0
         still_clear(first, d.n_blocks, d.block_coords, d.data["st"], d.data["lt"], o.table_keys, o.table_vals,
                     self.still)  # fmt: skip
-        qb = np.nonzero(self.qquiet[: lmap.O.n_blocks])[0].astype(np.int64)
+        qb = np.nonzero(self.qquiet[: o.n_blocks])[0].astype(np.int64)
         self.update(lmap, len(qb), qb)
 
     def after_tick(self, lmap: LayeredMap) -> None:
