@@ -10,6 +10,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ltmap_cli.config import Config
@@ -26,7 +27,7 @@ import gc, json, sys
 from numba.core.registry import CPUDispatcher
 from ltmap_cli.cli import cli
 from ltmap_cli.config import Config
-from ltmap_cli.pipeline.warmup import replay_groups, warm_up
+from ltmap_cli.pipeline.warmup import groups_cached, replay_groups, warm_up
 
 def kernels():
     return {f"{d.py_func.__module__}.{d.py_func.__qualname__}": len(d.signatures)
@@ -34,7 +35,7 @@ def kernels():
 
 cfg = Config()
 cfg.replay.mcap_out, cfg.replay.plan_goal = True, [5.0, 4.0]
-warm_up(cfg.map, replay_groups(cfg.replay, raw_depth=True))
+warm_up(cfg.map, replay_groups(cfg.replay, raw_depth=True, lists=groups_cached(["lists"])))  # (cached: loaded)
 before = kernels()
 try:
     cli(sys.argv[1:], prog_name="ltmap")
@@ -64,7 +65,7 @@ from ltmap_cli.pipeline.replay import Replay, ReplayRequest
 from ltmap_cli.pipeline.warmup import warm_depth_points
 cfg = Config()
 cfg.replay.plots = False
-warm_up(cfg.map, replay_groups(cfg.replay))
+warm_up(cfg.map, replay_groups(cfg.replay, lists=groups_cached(["lists"])))  # (cached: loaded)
 warm_depth_points(cfg.map)
 before = kernels()
 run = Replay(cfg, ReplayRequest([Path(sys.argv[1])], Path(sys.argv[2])))
@@ -138,7 +139,8 @@ def _record_warm_up(monkeypatch, seen: list):
         seen.append(("cast", "depth" if isinstance(frame, RawDepthFrame) else "other", ""))
         return real_cast(self, frame, T, robot)
 
-    monkeypatch.setattr(replay_mod, "kernels_cached", lambda: True)  # (a warm run, whatever the cache holds)
+    monkeypatch.setattr(replay_mod, "kernels_cached", lambda groups=(): True)  # (a warm run, whatever the cache holds)
+    monkeypatch.setattr(replay_mod, "groups_cached", lambda groups, layout="C": True)  # (lists too: loaded)
     for mod in (replay_mod, warmup_mod):
         monkeypatch.setattr(mod, "warm_up", up)
         monkeypatch.setattr(mod, "warm_depth", depth)
@@ -163,11 +165,13 @@ def test_a_warm_run_loads_its_kernels_in_a_thread_of_its_own_before_its_first_fr
     run.threads = threads
     run.run()
     loads = [s for s in seen if s[0] != "cast"]
-    assert [s[:2] for s in loads] == [("groups", tuple(replay_groups(cfg.replay))), ("depth", (np.dtype(np.uint16), True))]
+    groups = [g for s in loads if s[0] == "groups" for g in s[1]]  # (threads: a job per group)
+    assert sorted(groups) == sorted(replay_groups(cfg.replay, lists=True))  # (lists: cached, so loaded)
+    assert loads[-1][:2] == ("depth", (np.dtype(np.uint16), True)) and len(loads) == (4 if threads else 2)
     assert {s[2] for s in loads} == ({"ltmap-warmup_0"} if threads else {"MainThread"})
     first_cast = seen.index(next(s for s in seen if s[0] == "cast"))
     first_depth = seen.index(next(s for s in seen if s[1] == "depth" and s[0] == "cast"))
-    assert seen.index(loads[0]) < first_cast and seen.index(loads[1]) < first_depth
+    assert max(seen.index(s) for s in loads[:-1]) < first_cast and seen.index(loads[-1]) < first_depth
 
 
 @pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
@@ -184,7 +188,7 @@ def test_a_failure_of_the_background_warm_up_is_the_runs(tmp_path, monkeypatch):
         raise KernelCacheError("the kernel cache file x is damaged")
 
     cast: list = []
-    monkeypatch.setattr(replay_mod, "kernels_cached", lambda: True)
+    monkeypatch.setattr(replay_mod, "kernels_cached", lambda groups=(): True)
     monkeypatch.setattr(warmup_mod, "warm_up", broken)
     monkeypatch.setattr(FrameCaster, "cast", lambda self, *a: cast.append(1))
     cfg = Config()
@@ -209,17 +213,78 @@ def test_replay_groups():
 def test_lists_are_needed_only_by_sensors_whose_boxes_can_exceed_the_masks_limit():
     """By hand, at 0.05 m (blocks of 0.4 m; the limit LISTED_VOXELS_MAX_BLOCKS = 262,144): a depth
     camera cut at 8 m spans at most ceil(16 / 0.4) + 2 = 42 blocks a side, 74,088 blocks; at 30 m,
-    152^3; a level laser of 70 m, 352^2 x 2 = 247,808; of 80 m, 402^2 x 2 = 323,208; at 0.02 m
-    (blocks of 0.16 m) an 8 m camera, 102^3."""
+    152^3; a level laser of 70 m, 352^2 x 2 = 247,808; of 80 m, 402^2 x 2 = 323,208; one of 40 m
+    pitched by 5 degrees spans 80 sin 5 = 6.97 m in height, ceil(6.97 / 0.4) + 2 = 20 blocks:
+    202^2 x 20 = 816,080; at 0.02 m (blocks of 0.16 m) an 8 m camera, 102^3. A scan without a
+    finite range_max (inf, as pointcloud_to_laserscan publishes) reaches its farthest finite range."""
+    import math
+
     from ltmap_cli.core.projective import LISTED_VOXELS_MAX_BLOCKS
-    from ltmap_cli.pipeline.warmup import box_blocks, lists_needed
+    from ltmap_cli.io.frames import ScanFrame
+    from ltmap_cli.pipeline.warmup import box_blocks, lists_needed, scan_box_blocks
 
     assert LISTED_VOXELS_MAX_BLOCKS == 262_144
-    assert box_blocks(8.0, 0.05) == 42**3 and not lists_needed(8.0, 0.05)
-    assert box_blocks(30.0, 0.05) == 152**3 and lists_needed(30.0, 0.05)
-    assert box_blocks(70.0, 0.05, planar=True) == 352**2 * 2 and not lists_needed(70.0, 0.05, planar=True)
-    assert box_blocks(80.0, 0.05, planar=True) == 402**2 * 2 and lists_needed(80.0, 0.05, planar=True)
-    assert box_blocks(8.0, 0.02) == 102**3 and lists_needed(8.0, 0.02)
+    assert box_blocks(8.0, 0.05) == 42**3 and not lists_needed(box_blocks(8.0, 0.05))
+    assert box_blocks(30.0, 0.05) == 152**3 and lists_needed(box_blocks(30.0, 0.05))
+    assert box_blocks(8.0, 0.02) == 102**3 and lists_needed(box_blocks(8.0, 0.02))
+
+    def scan(range_max, ranges=(1.0,)):
+        return ScanFrame(0, "laser", 0.0, 0.01, 0.1, range_max, np.asarray(ranges, dtype=np.float32))
+
+    level, pitched = np.eye(4), np.eye(4)
+    a = math.radians(5.0)
+    pitched[:3, :3] = [[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]]
+    assert scan_box_blocks(scan(70.0), level, 0.05) == 352**2 * 2 and not lists_needed(352**2 * 2)
+    assert scan_box_blocks(scan(80.0), level, 0.05) == 402**2 * 2 and lists_needed(402**2 * 2)
+    assert scan_box_blocks(scan(40.0), pitched, 0.05) == 202**2 * 20
+    inf_scan = scan(float("inf"), [np.inf, np.nan, 3.0, -np.inf, 9.9])
+    assert scan_box_blocks(inf_scan, level, 0.05) == box_blocks(9.9, 0.05, 0.0) == 52**2 * 2
+    assert scan_box_blocks(scan(float("nan"), [np.nan]), level, 0.05) == 2 * 2 * 2  # (reach 0: its own blocks)
+
+
+def test_box_blocks_bound_the_boxes_of_frames_as_cast():
+    """The bound holds for frames as the map casts them (``LayeredMap.rays``, ``ends_box``): 200
+    seeded scans, tilted up to 10 degrees, with returns, no returns (inf, beyond range_max) and
+    NaN, and clouds cut at 8 m, anywhere in the map; the bound is tight within 3 blocks a side."""
+    import math
+
+    from ltmap_cli.core.layers import LayeredMap
+    from ltmap_cli.core.projective import ends_box
+    from ltmap_cli.core.sensors import scan_to_points, transform_points
+    from ltmap_cli.io.frames import ScanFrame
+    from ltmap_cli.pipeline.warmup import box_blocks, scan_box_blocks
+
+    cfg = Config()
+    m = LayeredMap(cfg.map)
+    res = cfg.map.resolution
+    rng = np.random.default_rng(30)
+
+    def blocks(origin, ends):
+        box = ends_box(origin, ends, 1.0 / res)
+        return int(np.prod((box[3:] >> 3) - (box[:3] >> 3) + 1))
+
+    tight = []
+    for _ in range(200):
+        roll, pitch, yaw = rng.uniform(-math.radians(10), math.radians(10), 2).tolist() + [rng.uniform(-3, 3)]
+        cr, sr, cp, sp, cy, sy = math.cos(roll), math.sin(roll), math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+        T = np.eye(4)
+        T[:3, :3] = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]]) @ np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]]) \
+            @ np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])  # fmt: skip
+        T[:3, 3] = rng.uniform(-50, 50, 3)
+        rmax = float(rng.choice([5.0, 30.0, 60.0]))
+        ranges = rng.uniform(0.05, rmax * 1.2, 360).astype(np.float32)
+        ranges[rng.random(360) < 0.1] = np.inf
+        ranges[rng.random(360) < 0.05] = np.nan
+        frame = ScanFrame(0, "laser", -math.pi, 2 * math.pi / 360, 0.1, rmax, ranges)
+        pts, rets = scan_to_points(frame.ranges, frame.angle_min, frame.angle_increment, frame.range_min, rmax)
+        ends, kind = m.rays(T[:3, 3], transform_points(T, pts), rets, max_range=rmax)
+        got, bound = blocks(T[:3, 3], ends), scan_box_blocks(frame, T, res)
+        assert got <= bound
+        tight.append(bound / got)
+        cloud = rng.normal(size=(2000, 3)) * rng.uniform(1.0, 6.0)
+        ends, kind = m.rays(T[:3, 3], transform_points(T, cloud), None, max_range=8.0)
+        assert blocks(T[:3, 3], ends) <= box_blocks(8.0, res)
+    assert min(tight) < (1 + 3 / 20) ** 2 * 2  # (some scan's box within 3 blocks a side of the bound)
 
 
 def test_children_share_the_groups_by_their_compiling():
@@ -351,7 +416,7 @@ def test_a_first_run_compiles_each_kernel_once(tmp_path):
 
 
 def _first_run_groups(tmp_path, monkeypatch, name, msgs, settings=None, cached=lambda groups=(): False,
-                      phases=None):
+                      phases=None, have=lambda groups, layout="C": True):
     """The groups a first run (``kernels_cached`` False; or as ``cached`` says) hands its compiling
     children, each time it starts some (recorded, not started: this process's kernels are
     compiled already), with the ``settings`` (dotted: value) given; the progress's phases into
@@ -377,6 +442,7 @@ def _first_run_groups(tmp_path, monkeypatch, name, msgs, settings=None, cached=l
             pass
 
     monkeypatch.setattr(replay_mod, "kernels_cached", cached)
+    monkeypatch.setattr(replay_mod, "groups_cached", have)  # (a warm run's groups that a run may lack)
     monkeypatch.setattr(replay_mod, "BackgroundCompile", Recorded)
     cfg = Config()
     cfg.replay.plots = False
@@ -424,29 +490,32 @@ def test_a_first_run_compiles_the_depth_kernels_of_its_images_encoding(tmp_path,
     assert got == [["rays", "lists", "maps", "depth16", "projective16"]]
     # a warm run of it whose cache lacks the lists group (the runs before never needed it):
     # its children compile that group alone
+    no_lists = lambda groups, layout="C": "lists" not in groups  # noqa: E731
     got = _first_run_groups(tmp_path, monkeypatch, "warm_far", place + depth_msgs("16UC1"),
-                            {"map.sensor.depth_max_range": 30.0}, cached=lambda groups=(): "lists" not in groups)  # fmt: skip
+                            {"map.sensor.depth_max_range": 30.0}, cached=lambda groups=(): True, have=no_lists)  # fmt: skip
     assert got == [["lists"]]
     got = _first_run_groups(tmp_path, monkeypatch, "warm_near", place + depth_msgs("16UC1"),
-                            cached=lambda groups=(): "lists" not in groups)  # fmt: skip
+                            cached=lambda groups=(): True, have=no_lists)  # fmt: skip
     assert got == []
     # a warm run of a 32FC1 log whose cache holds the 16UC1 depth kernels only (the logs before
     # were 16UC1): children for that encoding's groups at its first image, the progress saying so
-    import ltmap_cli.pipeline.replay as replay_mod
-
-    monkeypatch.setattr(replay_mod, "groups_cached", lambda groups, layout="C": not any(g.endswith("32") for g in groups))
+    no32 = lambda groups, layout="C": not any(g.endswith("32") for g in groups)  # noqa: E731
     for encoding, groups in (("32FC1", [["depth32", "projective32"]]), ("16UC1", [])):
         phases: list = []
         got = _first_run_groups(tmp_path, monkeypatch, f"warm{encoding}", place + depth_msgs(encoding),
-                                cached=lambda groups=(): True, phases=phases)  # fmt: skip
+                                cached=lambda groups=(): True, phases=phases, have=no32)  # fmt: skip
         assert got == groups
         assert any(p and p.startswith("compiling kernels") for p in phases) == bool(groups)
 
 
 @pytest.mark.skipif(not HOUSE.exists(), reason="house sample missing")
 def test_a_scan_reaching_far_warms_the_lists_group_before_its_frame_is_cast(tmp_path, monkeypatch):
-    """A laser whose range_max makes its box too big for masks (80 m at 0.05 m) has its voxels
-    listed: the lists group is warmed at its first frame, before it is cast; one of 10 m is not."""
+    """A laser whose box may be too big for masks (80 m level, 40 m pitched by 5 degrees, at
+    0.05 m) has its voxels listed: the lists group is warmed at its first frame, before it is
+    cast; one of 10 m, or with an infinite range_max and returns within 2 m, is not (an infinite
+    range_max crashed the check)."""
+    import math
+
     from logfactory import scan, tf, write_log
 
     import ltmap_cli.pipeline.replay as replay_mod
@@ -468,15 +537,19 @@ def test_a_scan_reaching_far_warms_the_lists_group_before_its_frame_is_cast(tmp_
     monkeypatch.setattr(FrameCaster, "cast", cast)
     monkeypatch.setattr(replay_mod, "warm_up", up)
     monkeypatch.setattr(replay_mod, "kernels_cached", lambda groups=(): True)
+    monkeypatch.setattr(replay_mod, "groups_cached", lambda groups, layout="C": "lists" not in groups)
     S = 10**9
-    for range_max, lists in ((80.0, True), (10.0, False)):
+    level, pitched = (0.0, 0.0, 0.0, 1.0), (0.0, math.sin(math.radians(2.5)), 0.0, math.cos(math.radians(2.5)))
+    for range_max, q, lists in ((80.0, level, True), (10.0, level, False), (40.0, pitched, True),
+                                (float("inf"), level, False)):  # fmt: skip
         seen.clear()
-        msgs = [tf(S // 2, [("map", "laser", (0.0, 0.0, 0.3), (0.0, 0.0, 0.0, 1.0))], static=True)]
+        msgs = [tf(S // 2, [("map", "laser", (0.0, 0.0, 0.3), q)], static=True)]
         msgs += [scan("/scan", S + i * S // 10, [2.0] * 90 + [float("inf")] * 10, range_max=range_max) for i in range(3)]
-        log = write_log(tmp_path / f"scan{range_max:g}.mcap", "mcap-ros2", msgs)
+        name = f"scan{range_max:g}_{q[1]:.2f}"
+        log = write_log(tmp_path / f"{name}.mcap", "mcap-ros2", msgs)
         cfg = Config()
         cfg.replay.plots = False
-        run = Replay(cfg, ReplayRequest([log], tmp_path / f"out{range_max:g}"))
+        run = Replay(cfg, ReplayRequest([log], tmp_path / name))
         run.threads = False
         run.run()
         warmed = [s for s in seen if s == ("warm", ("lists",))]

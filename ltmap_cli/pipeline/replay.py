@@ -64,12 +64,14 @@ from .timing import StageTimer
 from .warmup import (
     BackgroundCompile,
     BackgroundWarmUp,
+    box_blocks,
     depth_groups,
     depth_key,
     groups_cached,
     kernels_cached,
     lists_needed,
     replay_groups,
+    scan_box_blocks,
     warm_depth,
     warm_depth_points,
     warm_up,
@@ -296,16 +298,18 @@ class Replay:
             start_ns, end_ns = self._window(logs)
             self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
             # the voxels listed, not masked: depth images and clouds whose box may be too big (a
-            # long depth_max_range, a fine resolution); scans say at their first frame (_dispatch)
-            self._lists = bool(sel.depths or sel.clouds) and lists_needed(cfg.map.sensor.depth_max_range,
-                                                                         cfg.map.resolution)  # fmt: skip
+            # long depth_max_range, a fine resolution); scans say frame by frame (_dispatch)
+            self._lists = bool(sel.depths or sel.clouds) and lists_needed(box_blocks(
+                cfg.map.sensor.depth_max_range, cfg.map.resolution))  # fmt: skip
             if not cached:  # the first run: compile while the log is read and checked, from
                 self._cold_depth = bool(sel.depths) and self.fast  # its first depth image or frame (_start_compile)
                 self._compile_pending = True
-            elif self._lists and not kernels_cached(["lists"]):  # compiled by no run before (one without)
+            elif groups_cached(["lists"]):  # loaded whether needed or not (milliseconds): a frame the
+                self._lists = True  # checks above do not foresee (a step out of its box) lists its voxels
+                if self._loading is not None:
+                    self._loading.add(["lists"])
+            elif self._lists:  # needed, and compiled by no run before (they did without)
                 self._compile_groups, self._compile_pending = ["lists"], True
-            elif self._lists and self._loading is not None:
-                self._loading.add(["lists"])
             for s in self.sinks:
                 s.start(run, tf)
             self.scheduler = Scheduler(tf, wait_ns=int(cfg.replay.tf_wait * NS), timer=timer,
@@ -527,7 +531,7 @@ class Replay:
             if not self._warm:
                 self._warm_up()
             if not self._lists and isinstance(event.frame, ScanFrame) and lists_needed(
-                    event.frame.range_max, self.cfg.map.resolution, planar=True):  # fmt: skip
+                    scan_box_blocks(event.frame, event.T, self.cfg.map.resolution)):  # fmt: skip
                 self._warm_lists()
             raw = event.frame.raw if isinstance(event.frame, RawDepthFrame) and self.fast else None
             if raw is not None and (key := depth_key(raw)) not in self._warm_depth:
@@ -599,9 +603,9 @@ class Replay:
         elif not self._depth_is_cached(key):
             if key[1]:
                 self._compile = BackgroundCompile(depth_groups(key, self._projective()))
-                self._compiled_depth = key
                 with self.timer("warmup"):
                     self._wait_compile()
+                self._compile = None  # (its children ended: another encoding is checked as this one)
             else:
                 self._report_progress(None, force=True, phase=COMPILING)
         with self.timer("warmup"):
@@ -638,9 +642,9 @@ class Replay:
                 warm_up(self.cfg.map, replay_groups(self.cfg.replay, lists=self._lists))
 
     def _warm_lists(self) -> None:
-        """A scan that reaches far enough to have its voxels listed (a laser of more than 70 m
-        at 0.05 m): the lists group's kernels, loaded, or compiled here the first time (7 s; the
-        progress says so) before its frame is cast."""
+        """A scan whose box may be too big for masks (``warmup.scan_box_blocks``: a level laser
+        of more than 70 m at 0.05 m, a tilted one of less): the lists group's kernels, compiled
+        here the first time (7 s; the progress says so), before its frame is cast."""
         self._lists = True
         with self.timer("warmup"):
             if not kernels_cached(["lists"]):

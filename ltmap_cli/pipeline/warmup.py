@@ -43,7 +43,7 @@ from .. import core
 from ..core import raycast
 from ..core.config import MapConfig
 from ..core.grid import BLOCK
-from ..core.layers import LayeredMap, _QuietBlocks
+from ..core.layers import MAX_PLAIN_RANGE, LayeredMap, _QuietBlocks
 from ..core.projection import project, virtual_scan
 from ..core.projective import LISTED_VOXELS_MAX_BLOCKS, depth_projection_blocks
 from ..core.sensors import depth_to_points, transform_points
@@ -187,21 +187,38 @@ def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits
     return groups
 
 
-def box_blocks(reach: float, resolution: float, planar: bool = False) -> int:
+def box_blocks(reach: float, resolution: float, height: float | None = None) -> int:
     """The most blocks the box of a frame can hold (the voxels of its sensor and of its rays'
-    ends, ``core.projective.ends_box``) when its rays reach at most ``reach`` m: a cube, or with
-    ``planar`` (a level scan) a square two blocks high."""
-    side = math.ceil(2.0 * reach / (resolution * BLOCK)) + 2  # (+ 2: the box's ends on blocks)
-    return side * side * (2 if planar else side)
+    ends, ``core.projective.ends_box``) when its rays reach at most ``reach`` m: a cube, or, given
+    the ``height`` its ends can span (a scan's plane: ``scan_box_blocks``), a square that high."""
+    b = resolution * BLOCK
+    side = math.ceil(2.0 * reach / b) + 2  # (+ 2: the box's ends on blocks)
+    return side * side * (side if height is None else math.ceil(height / b) + 2)
 
 
-def lists_needed(reach: float, resolution: float, planar: bool = False) -> bool:
-    """Whether such a frame may have its voxels listed (a box of more than
-    ``LISTED_VOXELS_MAX_BLOCKS`` blocks: the ``lists`` group's kernels, 6.6 s of a first run's
-    compiling). At 0.05 m: not a depth camera or cloud cut at 8 m (42^3 blocks), nor a level
-    laser of up to 70 m (352^2 x 2); a cloud cut at 30 m or a laser of 80 m, yes. (A laser tilted
-    far from level may still list its voxels: numba then compiles them where they are called.)"""
-    return box_blocks(reach, resolution, planar) > LISTED_VOXELS_MAX_BLOCKS
+def scan_box_blocks(frame, T: np.ndarray, resolution: float) -> int:
+    """``box_blocks`` of a LaserScan (``io.frames.ScanFrame``) placed at ``T`` (4x4, its frame in
+    the fixed frame): its rays reach its ``range_max`` (no return clears up to it), or, without
+    a finite one below ``MAX_PLAIN_RANGE`` (inf, as pointcloud_to_laserscan publishes), its
+    farthest finite range; they lie in the laser's x-y plane, which spans 2 reach sin(tilt) in
+    height (a laser pitched by 1 degree at 65 m: 2.3 m)."""
+    rmax = float(frame.range_max)
+    if math.isfinite(rmax) and 0.0 < rmax <= MAX_PLAIN_RANGE:
+        reach = rmax
+    else:
+        r = np.asarray(frame.ranges, dtype=np.float64)
+        fin = r[np.isfinite(r)]
+        reach = float(np.abs(fin).max()) if len(fin) else 0.0
+    return box_blocks(reach, resolution, 2.0 * reach * math.hypot(float(T[2, 0]), float(T[2, 1])))
+
+
+def lists_needed(blocks: int) -> bool:
+    """Whether a frame whose box may hold ``blocks`` blocks (``box_blocks``) may have its voxels
+    listed (more than ``LISTED_VOXELS_MAX_BLOCKS``: the ``lists`` group's kernels, 6.6 s of a
+    first run's compiling). At 0.05 m: not a depth camera or cloud cut at 8 m (42^3 blocks), nor
+    a level laser of up to 70 m (352^2 x 2); a cloud cut at 30 m, a level laser of 80 m or one
+    of 40 m pitched by 5 degrees, yes."""
+    return blocks > LISTED_VOXELS_MAX_BLOCKS
 
 
 def warm_up(cfg: MapConfig, groups=tuple(GROUPS)) -> None:
@@ -227,12 +244,15 @@ class BackgroundWarmUp:
     def __init__(self, cfg: MapConfig, groups):
         self.cfg = cfg
         self.pool = ThreadPoolExecutor(1, thread_name_prefix="ltmap-warmup")
-        self.common = self.pool.submit(warm_up, cfg, groups)
+        self.common: Future | None = None
         self.depths: dict[tuple, Future] = {}
+        self.add(groups)
 
     def add(self, groups) -> Future:
-        """Load ``groups`` too, after those before (``lists``, once the log says it is needed)."""
-        self.common = self.pool.submit(lambda before: (before.result(), warm_up(self.cfg, groups)), self.common)
+        """Load ``groups`` too, after those before, a job each (so ``close`` drops those not
+        begun); ``common`` is the last, which re-raises the failure of any before it."""
+        for g in groups:
+            self.common = self.pool.submit(_after, self.common, warm_up, self.cfg, [g])
         return self.common
 
     def depth(self, key: tuple) -> Future:
@@ -241,8 +261,15 @@ class BackgroundWarmUp:
         return self.depths[key]
 
     def close(self) -> None:
-        """No more jobs; one being run ends by itself (a kernel's loading cannot be stopped)."""
+        """No more jobs; the one being run ends by itself (a kernel's loading cannot be stopped)."""
         self.pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _after(before: Future | None, fn, *args) -> None:
+    """``fn(*args)`` once ``before`` has ended well (its failure is raised instead)."""
+    if before is not None:
+        before.result()
+    fn(*args)
 
 
 def cache_folder() -> Path:
