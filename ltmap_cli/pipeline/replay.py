@@ -65,6 +65,7 @@ from .warmup import (
     BackgroundCompile,
     BackgroundWarmUp,
     box_blocks,
+    depth_bits,
     depth_groups,
     depth_key,
     groups_cached,
@@ -577,15 +578,16 @@ class Replay:
         (``_warm_up``), the 16-bit ones, the encoding of most cameras."""
         self._compile_pending = False
         cfg = self.cfg
-        bits = "32" if isinstance(item, RawDepthFrame) and item.raw.dtype.kind == "f" else "16"
+        bits = depth_bits(item.raw.dtype) if isinstance(item, RawDepthFrame) else "16"
         if self._cold_depth:  # (what the children compile: C-contiguous images of that encoding)
             self._compiled_depth = (np.dtype(np.float32 if bits == "32" else np.uint16), True)
         self._compile = BackgroundCompile(self._compile_groups or replay_groups(
-            cfg.replay, self._cold_depth, cfg.map.sensor.depth_integration == "projective", bits, lists=self._lists))
+            cfg.replay, self._cold_depth, self._projective(), bits, lists=self._lists))
 
     def _depth_is_cached(self, key: tuple) -> bool:
         if key not in self._depth_cached:
-            self._depth_cached[key] = groups_cached(depth_groups(key, self._projective()), "C" if key[1] else "A")
+            self._depth_cached[key] = groups_cached(depth_groups(depth_bits(key[0]), self._projective()),
+                                                    "C" if key[1] else "A")  # fmt: skip
         return self._depth_cached[key]
 
     def _projective(self) -> bool:
@@ -602,7 +604,7 @@ class Replay:
                 self._report_progress(None, force=True, phase=COMPILING)
         elif not self._depth_is_cached(key):
             if key[1]:
-                self._compile = BackgroundCompile(depth_groups(key, self._projective()))
+                self._compile = BackgroundCompile(depth_groups(depth_bits(key[0]), self._projective()))
                 with self.timer("warmup"):
                     self._wait_compile()
                 self._compile = None  # (its children ended: another encoding is checked as this one)
@@ -647,7 +649,7 @@ class Replay:
         here the first time (7 s; the progress says so), before its frame is cast."""
         self._lists = True
         with self.timer("warmup"):
-            if not kernels_cached(["lists"]):
+            if not groups_cached(["lists"]):
                 self._report_progress(None, force=True, phase=COMPILING)
             warm_up(self.cfg.map, ["lists"])
 

@@ -183,7 +183,7 @@ def replay_groups(replay, raw_depth: bool = False, projective: bool = True, bits
     if replay.plan_goal:
         groups.append("planner")
     if raw_depth:
-        groups += [f"depth{bits}", f"projective{bits}"] if projective else [f"depth{bits}"]
+        groups += depth_groups(bits, projective)
     return groups
 
 
@@ -293,7 +293,7 @@ def _core_kernels():
                 yield obj
 
 
-def kernels_cached(groups=()) -> bool:
+def kernels_cached() -> bool:
     """Whether numba's disk cache holds the map's kernels for the code as it is (else the first
     run compiles them), as numba itself decides: a kernel's index (``*.nbi``, in
     ``cache_folder()``) counts when it was written by the same numba for the same source text
@@ -306,20 +306,15 @@ def kernels_cached(groups=()) -> bool:
     are good, and a kernel never compiled has none; an index counts only with code for this
     process's target (numba's key: CPU and features). An index that cannot be read (a cache
     copied in part, a damaged disk: numba writes them whole) is removed, so numba compiles that
-    kernel again instead of failing on it in every run. ``groups``: and those of them that a
-    run may call when no run before did (``GROUP_PROBES``: ``groups_cached``)."""
+    kernel again instead of failing on it in every run. (The groups a run calls only for some
+    logs: ``groups_cached``.)"""
     try:
-        from numba.core.registry import cpu_target
-
-        # numba keys a kernel's cached code by the target too (triple, CPU, features: ltmap_cli.jit's
-        # choice): code compiled for another CPU sharing the folder, or for other
-        # NUMBA_CPU_FEATURES, is not this process's
-        target = cpu_target.target_context.codegen().magic_tuple()
+        target = _target()
         fresh: dict[str, bool] = {}
         for k in _core_kernels():
             if os.path.exists(k._cache._cache_file._index_path) and not fresh.get(k.__module__):
                 fresh[k.__module__] = _index_good(k, target)
-        return bool(fresh) and all(fresh.values()) and groups_cached(groups)
+        return bool(fresh) and all(fresh.values())
     except (AttributeError, ImportError):  # numba's internals moved: compare times, as numba did once
         folder = cache_folder()
         newest = max((f.stat().st_mtime for f in folder.glob("*.nbi")), default=None) if folder.is_dir() else None
@@ -333,12 +328,19 @@ def groups_cached(groups, layout: str = "C") -> bool:
     of them (the lists group after runs that never needed it; the 32FC1 depth kernels after
     16UC1 logs only)."""
     try:
-        from numba.core.registry import cpu_target
-
-        target = cpu_target.target_context.codegen().magic_tuple()
+        target = _target()
         return all(_index_good(k, target, dtype, layout) for g in groups for k, dtype in GROUP_PROBES.get(g, ()))
     except (AttributeError, ImportError):  # (numba's internals moved: kernels_cached's times only)
         return True
+
+
+def _target() -> tuple:
+    """numba's key for this process's target (triple, CPU, features: ``ltmap_cli.jit``'s choice):
+    code cached for another CPU sharing the folder, or for other ``NUMBA_CPU_FEATURES``, is not
+    this process's."""
+    from numba.core.registry import cpu_target
+
+    return cpu_target.target_context.codegen().magic_tuple()
 
 
 def _index_good(kernel, target, dtype=None, layout: str = "C") -> bool:
@@ -371,11 +373,15 @@ GROUP_PROBES = {
 }
 
 
-def depth_groups(key: tuple, projective_integration: bool) -> list[str]:
-    """The groups of a depth image encoding (``depth_key``): its depth kernel's, and with
-    projective integration its projection's."""
-    bits = "32" if np.dtype(key[0]).kind == "f" else "16"
-    return [f"depth{bits}", f"projective{bits}"] if projective_integration else [f"depth{bits}"]
+def depth_groups(bits: str, projective: bool) -> list[str]:
+    """The groups of a depth image encoding (``bits`` "16" or "32": ``depth_bits``): its depth
+    kernel's, and with projective integration its projection's."""
+    return [f"depth{bits}", f"projective{bits}"] if projective else [f"depth{bits}"]
+
+
+def depth_bits(dtype) -> str:
+    """A raw depth image's encoding: "32" for float32 metres (32FC1), else "16"."""
+    return "32" if np.dtype(dtype).kind == "f" else "16"
 
 
 _NUMBA_LOADS = ("_load_index", "_load_data")  # numba.core.caching.IndexDataCacheFile's readers
