@@ -1016,7 +1016,9 @@ def _depth_rays_pass(
             pz = t20 * x + t21 * y + t22 * z + t23
             valid = valid & np.isfinite(px) & np.isfinite(py) & np.isfinite(pz)
             dx, dy, dz = px - ox, py - oy, pz - oz
-            n_far += np.int32(not (dx * dx + dy * dy + dz * dz < safe2))  # (NaN: may be)
+            # (a hole, NaN in 32FC1, has no key: the cut skips it; counted, a float image's holes
+            # sent nearly every row through the cut's walk: 0.5 ms of a frame with 4 % holes)
+            n_far += np.int32(valid & (not (dx * dx + dy * dy + dz * dz < safe2)))
             n_near += np.int32(valid & (z <= zfp))  # (a hole's z is 0)
             hit = not (use_ground & (abs(pz) <= ground_tol))  # (the footprint box: pass 1a)
             # the voxel through int32 (keys are within +-2^20): AVX2 has no vector conversion of
