@@ -316,6 +316,24 @@ def _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, 
     return cls, px0, py0, pz0
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _pair_culled(si, sj, sk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far, planes, e):
+    """True when ``_classify`` culls the 2 x 2 x 2 blocks from block (2 si, 2 sj, 2 sk): a
+    cube that holds no miss holds none in any of its blocks (each of the tests bounds its
+    blocks' too), so a frame box's blocks outside the frustum are culled eight at a time (a
+    depot seen to the depth range from a 90 deg camera: 3,500 of its box's 6,800 blocks, 0.8
+    ms of classes a frame)."""
+    n = 2 * BLOCK
+    g = 0.5 * (n - 1) + 0.5  # the cube's centre, in voxel steps from the corner of voxel (0, 0, 0)
+    x0, y0, z0 = (si * n + g) * res, (sj * n + g) * res, (sk * n + g) * res
+    qx = Tinv[0, 0] * x0 + Tinv[0, 1] * y0 + Tinv[0, 2] * z0 + Tinv[0, 3]
+    qy = Tinv[1, 0] * x0 + Tinv[1, 1] * y0 + Tinv[1, 2] * z0 + Tinv[1, 3]
+    qz = Tinv[2, 0] * x0 + Tinv[2, 1] * y0 + Tinv[2, 2] * z0 + Tinv[2, 3]
+    cls, _, _ = _classify(qx, qy, qz, np.int64(n), e[0], e[1], e[2], e[3], e[4], e[5], e[6], e[7], e[8], res, band, far,
+                          fx, fy, cx, cy, w, h, planes, tmin, tmax)  # fmt: skip
+    return cls == CULLED
+
+
 @njit(cache=True, nogil=True)
 def _fill_scratch():
     """``_block_fill``'s per-voxel rows for a quarter's 64 voxels, allocated once per call of the
@@ -502,12 +520,22 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     lookup = o_keys.shape[0] > 0 and o_keys.shape[0] == o_vals.shape[0]
     n_known = min(qquiet.shape[0], still.shape[0])
     words = np.zeros(8, dtype=np.uint64)
+    # the pairs of blocks along each axis (_pair_culled): 0 not known yet, 1 culled, 2 not
+    si0, sj0, sk0 = bi0 >> 1, bj0 >> 1, bk0 >> 1
+    nsj, nsk = (bj1 >> 1) - sj0 + 1, (bk1 >> 1) - sk0 + 1
+    pairs = np.zeros(((bi1 >> 1) - si0 + 1) * nsj * nsk, dtype=np.int8)
     for b in range(start, nblocks):
         if n == cap or n_skipped == skipped.shape[0]:
             return n, n_skipped, b
         bi = bi0 + b // (nbj * nbk)
         bj = bj0 + (b // nbk) % nbj
         bk = bk0 + b % nbk
+        s = (((bi >> 1) - si0) * nsj + ((bj >> 1) - sj0)) * nsk + ((bk >> 1) - sk0)
+        if pairs[s] == 0:
+            pairs[s] = 1 if _pair_culled(bi >> 1, bj >> 1, bk >> 1, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band,
+                                         far, planes, e) else 2  # fmt: skip
+        if pairs[s] == 1:
+            continue
         cls, px0, py0, pz0 = _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far,
                                           planes, e)  # fmt: skip
         if cls == CULLED:
