@@ -182,6 +182,49 @@ def test_depth_32fc1_and_invalid_pixels(tmp_path):
     assert np.isnan(frames[0].depth_m).all()  # the wall at 2.0 m is beyond range_max 1.9: NaN
 
 
+def _depth_images(tmp_path: Path, sub: str, **depth) -> tuple[Path, np.ndarray]:
+    """The log of SCENARIO's depth camera alone (no noise; the box in front of the wall from
+    t = 1 s) with ``depth``'s settings added, and its images (frames, H, W) in metres, NaN
+    without a return."""
+    doc = json.loads(json.dumps(SCENARIO))
+    doc["sensors"] = {"depth": {**SCENARIO["sensors"]["depth"], **depth}}
+    out = simulate(tmp_path, "mcap", doc=doc, sub=sub)
+    with open_logs(out) as logs:
+        return out, np.stack([f.depth_m for _, _, f in logs.messages() if isinstance(f, DepthFrame)])
+
+
+def test_depth_holes_at_edges_and_at_random(tmp_path):
+    """``edge_dropout`` takes the return of exactly the pixels ``depth_edges`` finds in the image
+    without it (the box's outline against the wall); ``dropout`` that of a share of the pixels,
+    at random; both 0 leave the log byte for byte as without them."""
+    from ltmap_cli.sim.sensors import depth_edges
+
+    plain, z = _depth_images(tmp_path, "plain")
+    assert np.isfinite(z).all()  # the wall everywhere, the box from t = 1
+    zero, _ = _depth_images(tmp_path, "zero", dropout=0, edge_dropout=0)
+    assert digest(zero) == digest(plain)
+    _, e1 = _depth_images(tmp_path, "edge1", edge_dropout=1)
+    _, e3 = _depth_images(tmp_path, "edge3", edge_dropout=3)
+    for width, got in ((1, e1), (3, e3)):
+        want = np.stack([depth_edges(img, width) for img in z])
+        assert np.array_equal(np.isnan(got), want)
+        assert np.array_equal(got[~want], z[~want])
+    assert not np.isnan(e1[0]).any()  # no box yet: no edge
+    box = np.isnan(e1[-1])
+    assert 30 <= box.sum() <= 80 and box[:, :5].sum() == 0  # its outline, not the wall's middle
+    assert np.isnan(e3[-1]).sum() > box.sum()
+    _, dropped = _depth_images(tmp_path, "drop", dropout=0.2)
+    holes = np.isnan(dropped)
+    n = holes.size
+    assert abs(holes.sum() - 0.2 * n) < 5 * math.sqrt(n * 0.2 * 0.8)
+    assert not np.array_equal(holes[0], holes[1])  # drawn for each image
+    assert np.array_equal(dropped[~holes], z[~holes])
+    _, noisy = _depth_images(tmp_path, "noisy", noise=0.01)
+    _, noisy_dropped = _depth_images(tmp_path, "noisy_drop", noise=0.01, dropout=0.2)
+    holes = np.isnan(noisy_dropped)
+    assert holes.any() and np.array_equal(noisy_dropped[~holes], noisy[~holes])  # the noise drawn as without holes
+
+
 def test_ground_truth_describes_objects_and_path(tmp_path):
     doc = json.loads(json.dumps(SCENARIO))
     doc["doors"] = [{"id": "door", "from": [3.5, 1], "to": [3.5, 3], "closed": [[0.5, 1.5]]}]

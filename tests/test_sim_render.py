@@ -358,3 +358,23 @@ def test_moving_doors_in_the_ground_truth():
     box = {o["id"]: o for o in Simulator(door_scenario()).ground_truth()["objects"]}["d"]
     assert sorted(box) == ["category", "from", "id", "kind", "parts", "present", "shape", "to"]
     assert box["shape"] == "box"
+
+
+def test_depth_edges_by_hand():
+    """A step from 2 m to 3 m between columns 4 and 5 (50 %: an edge), a 2 % step between rows
+    2 and 3 (none), and a pixel without a return at the corner: width 1 marks the two pixels at
+    each edge, width 2 one more on each side."""
+    from ltmap_cli.sim.sensors import depth_edges
+
+    z = np.full((5, 8), 2.0)
+    z[:, 5:] = 3.0
+    z[3:, :5] = 2.04
+    z[0, 0] = np.inf
+    one = np.zeros((5, 8), dtype=int)
+    one[:, 4:6] = 1
+    one[0, 0] = one[0, 1] = one[1, 0] = 1
+    assert np.array_equal(depth_edges(z, 1).astype(int), one)
+    two = one.copy()
+    two[:, 3] = two[:, 6] = 1
+    two[0, 2] = two[1, 1] = two[2, 0] = 1
+    assert np.array_equal(depth_edges(z, 2).astype(int), two)

@@ -59,6 +59,8 @@ class Depth:
     range_max: float = 8.0
     noise: float = 0.0
     quantization: float = 0.0  # disparity-like steps: depth rounded to multiples of q * z^2
+    dropout: float = 0.0  # the share of pixels, drawn at random, without a return
+    edge_dropout: int = 0  # pixels without a return up to this many from a depth edge (a jump of EDGE_JUMP)
     encoding: str = "16UC1"
 
 
@@ -332,6 +334,8 @@ def _depth(ctx: _Ctx, v: Any) -> Depth:
             "range_max",
             "noise",
             "quantization",
+            "dropout",
+            "edge_dropout",
             "encoding",
         ),
     )
@@ -353,6 +357,8 @@ def _depth(ctx: _Ctx, v: Any) -> Depth:
     D.range_max = ctx.number(d, "range_max", p, D.range_max, lo=D.range_min, lo_open=True)
     D.noise = ctx.number(d, "noise", p, D.noise, lo=0)
     D.quantization = ctx.number(d, "quantization", p, D.quantization, lo=0, hi=1)
+    D.dropout = ctx.number(d, "dropout", p, D.dropout, lo=0, hi=1)
+    D.edge_dropout = int(ctx.number(d, "edge_dropout", p, D.edge_dropout, lo=0, hi=64))
     enc = d.get("encoding", D.encoding)
     if enc not in ENCODINGS:
         raise ctx.fail(

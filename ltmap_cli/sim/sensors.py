@@ -125,6 +125,38 @@ def render_depth(
     return prims.cast(T[:3, 3], r @ T[:3, :3].T).reshape(D.height, D.width)
 
 
+# a depth edge: neighbouring pixels whose depths differ by more than this share of the nearer
+# (a stereo or structured-light camera loses the pixels there: occlusion shadows, mixed pixels)
+EDGE_JUMP = 0.05
+
+
+def _jumps(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Neighbours ``a``, ``b`` across a depth edge: one with a return and one without, or depths
+    differing by more than ``EDGE_JUMP`` of the nearer."""
+    fa, fb = np.isfinite(a), np.isfinite(b)
+    with np.errstate(invalid="ignore"):
+        return (fa != fb) | (fa & fb & (np.abs(a - b) > EDGE_JUMP * np.minimum(a, b)))
+
+
+def depth_edges(z: np.ndarray, width: int) -> np.ndarray:
+    """(H, W) bool: the pixels of z-depth ``z`` (inf or NaN: no return) within ``width`` pixels
+    of a depth edge along rows and columns; 1: the two pixels at each edge, 2: and one more on
+    each side."""
+    jx, jy = _jumps(z[:, 1:], z[:, :-1]), _jumps(z[1:, :], z[:-1, :])
+    edge = np.zeros(z.shape, dtype=bool)
+    edge[:, 1:] |= jx
+    edge[:, :-1] |= jx
+    edge[1:, :] |= jy
+    edge[:-1, :] |= jy
+    grown = edge.copy()
+    for d in range(1, width):
+        grown[:, d:] |= edge[:, :-d]
+        grown[:, :-d] |= edge[:, d:]
+        grown[d:, :] |= edge[:-d, :]
+        grown[:-d, :] |= edge[d:, :]
+    return grown
+
+
 # ----------------------------------------------------------------------------- 3D lidar
 
 

@@ -34,6 +34,7 @@ from .scenario import Scenario
 from .scene import World, active, door_leaf, door_motion, person_at, robot_pose
 from .sensors import (
     R_LINK_OPTICAL,
+    depth_edges,
     laser_angles,
     mount_matrix,
     pixel_rays,
@@ -215,6 +216,7 @@ class Simulator:
     def _depth(self):
         sc, D = self.sc, self.sc.depth
         rng = np.random.default_rng([sc.seed, 2])
+        holes = np.random.default_rng([sc.seed, 4])  # (a stream of its own: the noise is drawn as before)
         rays = pixel_rays(D)
         info = {
             "height": D.height,
@@ -233,6 +235,10 @@ class Simulator:
                 with np.errstate(invalid="ignore"):
                     step = D.quantization * z * z
                     z = np.where(np.isfinite(z), np.round(z / step) * step, z)
+            if D.edge_dropout > 0:
+                z = np.where(depth_edges(z, D.edge_dropout), np.nan, z)
+            if D.dropout > 0:
+                z = np.where(holes.random(z.shape) < D.dropout, np.nan, z)
             bad = ~((z >= D.range_min) & (z <= D.range_max))
             s = _stamp(sc, t)
             header = {"stamp": s, "frame_id": D.optical_frame}
