@@ -24,9 +24,13 @@ default settings), each simulated once with ``ltmap simulate`` and cached under
 - ``depot``: held out (session 31, not in the default set): a 30 x 16 m depot with shelf rows
   and a partition, driven through at up to 2 m/s with turns, a RealSense D435's default depth
   stream (848x480, fx 425, about 90 x 59 deg) 0.9 m up: the camera sees to its 10 m range and
-  beyond (no return: 0, 16 % of the pixels; 15 % cut at the 8 m depth range), and most of what
-  it sees each frame it did not see a second before (no quiet blocks there); a 1080-beam 25 m
-  laser at 40 Hz beside it.
+  beyond (no return: 0, 16 % of the pixels; 15 % cut at the 8 m depth range) and with holes as
+  such a camera has them (2 % of the pixels at random, 2 pixels either side of depth edges),
+  and most of what it sees each frame it did not see a second before (no quiet blocks there); a
+  1080-beam 25 m laser at 40 Hz beside it.
+- ``office_holes``: held out (session 31): the office with holes in its float images (NaN: 3 %
+  of the pixels at random, 2 pixels either side of depth edges), as the office's stereo-like
+  camera would have them; the other scenes' images have none.
 - ``lidar``: no camera: a laser-only robot with a long-range scanner (1080 beams over 270 deg at
   40 Hz, 25 m) driven down a 30 x 16 m warehouse of shelf rows, a pallet taken away, a person
   walking across: scans alone, whole rays (not in the default set; it has no depth frames for
@@ -285,6 +289,16 @@ def lidar_yaml() -> str:
     ])
 
 
+def office_holes_yaml() -> str:
+    """The office with holes in its depth images (NaN: 3 % of the pixels at random, 2 pixels
+    either side of depth edges), as a stereo camera has them (session 31)."""
+    old = "noise: 0.004, quantization: 0.0025, range_max: 10, encoding: 32FC1}"
+    text = office_yaml()
+    assert old in text
+    return text.replace("name: bench-long-office", "name: bench-long-office-holes").replace(
+        old, "noise: 0.004, quantization: 0.0025, range_max: 10, encoding: 32FC1,\n          dropout: 0.03, edge_dropout: 2}")
+
+
 def depot_yaml() -> str:
     """Held out (session 31): a depot driven through fast with the 848x480 depth camera of a
     RealSense D435, seeing past its range (no returns) and into space it did not see before."""
@@ -314,7 +328,7 @@ def depot_yaml() -> str:
         "sensors:",
         "  laser: {beams: 1080, fov: 270, range_max: 25, rate: 40, noise: 0.01, mount: {xyz: [0.2, 0, 0.3]}}",
         "  depth: {mount: {xyz: [0.15, 0, 0.9]}, pitch: 3, width: 848, height: 480, fx: 425, rate: 30, noise: 0.003,",
-        "          quantization: 0.0025, range_max: 10}",
+        "          quantization: 0.0025, range_max: 10, dropout: 0.02, edge_dropout: 2}",
         "objects:",
         "  - {id: shelf0, kind: box, pose: {x: 5, y: 12.5}, size: [3.5, 1.0, 2.5]}",
         "  - {id: shelf1, kind: box, pose: {x: 18, y: 12.5}, size: [3.5, 1.0, 2.5]}",
@@ -340,6 +354,7 @@ SCENES = {
     "lab720": lab720_yaml,
     "lidar": lidar_yaml,
     "depot": depot_yaml,
+    "office_holes": office_holes_yaml,
 }
 
 
