@@ -22,7 +22,7 @@ default settings), each simulated once with ``ltmap simulate`` and cached under
   pitched down, a person and a chair taken away (not in the default set; held out when the
   projection's rim was chosen in session 17).
 - ``depot``: held out (session 31, not in the default set): a 30 x 16 m depot with shelf rows
-  and a partition, driven through at up to 2 m/s with turns, a RealSense D435's default depth
+  and a partition, driven through at up to 1.3 m/s with turns, a RealSense D435's default depth
   stream (848x480, fx 425, about 90 x 59 deg) 0.9 m up: the camera sees to its 10 m range and
   beyond (no return: 0, 16 % of the pixels; 15 % cut at the 8 m depth range) and with holes as
   such a camera has them (2 % of the pixels at random, 2 pixels either side of depth edges),

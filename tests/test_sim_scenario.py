@@ -55,6 +55,7 @@ def edited(**changes):
     (edited(sensors__depth={"encoding": "rgb8"}), "sensors.depth.encoding", "use one of 16UC1, 32FC1"),
     (edited(sensors__depth={"dropout": 1.5}), "sensors.depth.dropout", "too large"),
     (edited(sensors__depth={"edge_dropout": -1}), "sensors.depth.edge_dropout", "too small"),
+    (edited(sensors__depth={"edge_dropout": 0.5}), "sensors.depth.edge_dropout", "not a whole number of pixels"),
     (edited(robot__path={"still": {"x": 1, "y": 1}, "waypoints": []}), "robot.path", "exactly one of"),
     (edited(robot__path={"waypoints": [{"t": 1, "x": 0, "y": 0}, {"t": 1, "x": 1, "y": 0}]}),
      "robot.path.waypoints[1].t", "not after the previous waypoint"),

@@ -478,12 +478,10 @@ def test_fast_threaded_replay_equals_serial_replay(tmp_path):
     assert rep_s["events"]["list"] == rep_f["events"]["list"]
     assert (tmp_path / "serial" / "map.pgm").read_bytes() == (tmp_path / "fast" / "map.pgm").read_bytes()
     assert set(rep_f["stage_s"]) >= {"warmup", "read", "tf", "rays", "integrate", "ticks", "output"}
-    # the kernels' first calls happen in the warm-up, not in the first frames: the first scan and
-    # depth frame cost about what later ones do (they used to carry the numba cache load, ~0.2 s,
-    # or after an install the compilation, seconds)
+    # the kernels' first calls happen in the warm-up, not in the first frames (that nothing is
+    # compiled or loaded after it: test_warmup's subprocess checks, not a timed bound on the
+    # first frames here, which a loaded machine broke)
     assert rep_s["stage_s"]["warmup"] > 0
-    for topic, limit_ms in (("/scan", 50.0), ("/camera/depth/image_raw", 400.0)):
-        assert serial.metrics.frame_ms[topic][0] < limit_ms, topic
 
 
 def test_any_number_of_ray_workers_gives_the_serial_map(tmp_path):

@@ -358,7 +358,10 @@ def _depth(ctx: _Ctx, v: Any) -> Depth:
     D.noise = ctx.number(d, "noise", p, D.noise, lo=0)
     D.quantization = ctx.number(d, "quantization", p, D.quantization, lo=0, hi=1)
     D.dropout = ctx.number(d, "dropout", p, D.dropout, lo=0, hi=1)
-    D.edge_dropout = int(ctx.number(d, "edge_dropout", p, D.edge_dropout, lo=0, hi=64))
+    edge = ctx.number(d, "edge_dropout", p, D.edge_dropout, lo=0, hi=64)
+    if edge != int(edge):
+        raise ctx.fail(f"{p}.edge_dropout", f"{edge:g} is not a whole number of pixels", "use 0, 1, 2, ...")
+    D.edge_dropout = int(edge)
     enc = d.get("encoding", D.encoding)
     if enc not in ENCODINGS:
         raise ctx.fail(
