@@ -228,7 +228,10 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
     """The CLI's first Ctrl-C while the log is read stops the reading (``Replay.interrupt``) and
     says the frames read so far are mapped; one after the whole log was read (the last ticks,
     the outputs) stops nothing, the run ends as a complete one (status 0), and says that (it said
-    "mapping the frames read so far" before). The previous SIGINT handler is put back after."""
+    "mapping the frames read so far" before). The previous SIGINT handler is put back after. In a
+    process that ignores SIGINT (a job started in the background by a shell), it installs nothing:
+    Ctrl-C stays ignored. (Python's own handler is installed first: pytest itself may run with
+    SIGINT ignored, as under CI started in the background, and the test failed there.)"""
     import os
     import signal
     import time
@@ -236,23 +239,34 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
 
     from ltmap_cli.commands.replay import first_ctrl_c_stops
 
-    before = signal.getsignal(signal.SIGINT)
-    for read_all in (False, True):
+    outer = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        for read_all in (False, True):
+            stopped, said = [], []
+            run = SimpleNamespace(whole_log_read=read_all, interrupt=lambda stopped=stopped: stopped.append(True))
+            with first_ctrl_c_stops(run, said.append, Path("out")):
+                os.kill(os.getpid(), signal.SIGINT)
+                for _ in range(200):  # (the handler runs in this thread, between two bytecodes)
+                    if said:
+                        break
+                    time.sleep(0.01)
+                assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # a second one stops at once
+            assert len(said) == 1 and said[0].endswith("(Ctrl-C again to stop at once; out/ then keeps what it held)")
+            if read_all:
+                assert not stopped and said[0].startswith("ltmap: interrupted after the whole log was read: finishing out/")
+            else:
+                assert stopped == [True] and said[0].startswith("ltmap: interrupted: mapping the frames read so far")
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
         stopped, said = [], []
-        run = SimpleNamespace(whole_log_read=read_all, interrupt=lambda stopped=stopped: stopped.append(True))
+        run = SimpleNamespace(whole_log_read=False, interrupt=lambda: stopped.append(True))
         with first_ctrl_c_stops(run, said.append, Path("out")):
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
             os.kill(os.getpid(), signal.SIGINT)
-            for _ in range(200):  # (the handler runs in this thread, between two bytecodes)
-                if said:
-                    break
-                time.sleep(0.01)
-            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # a second one stops at once
-        assert len(said) == 1 and said[0].endswith("(Ctrl-C again to stop at once; out/ then keeps what it held)")
-        if read_all:
-            assert not stopped and said[0].startswith("ltmap: interrupted after the whole log was read: finishing out/")
-        else:
-            assert stopped == [True] and said[0].startswith("ltmap: interrupted: mapping the frames read so far")
-        assert signal.getsignal(signal.SIGINT) is before
+            time.sleep(0.05)
+        assert not said and not stopped and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, outer)
 
 
 def test_a_recording_split_into_more_files_than_the_open_file_limit(tmp_path):
