@@ -549,13 +549,13 @@ def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
 
 
 def _reference_misses(reach: np.ndarray, fx, fy, cx, cy, Tinv: np.ndarray, box: np.ndarray, res: float) -> set:
-    """The voxels of the blocks of ``box`` the projection makes misses, by the rule ``projective_blocks``
-    states, voxel by voxel with numpy (no block or quarter bounds, no tiles): the voxel's centre
-    in the optical frame, as the kernel computes it (block origin + offsets times a voxel step),
-    with z > 0, is nearer than the reach of its pixel or of one of the 8 pixels at the rim of
-    its projection (centre +- ``RIM`` voxel sizes, projected)."""
+    """The voxels of ``box`` (inclusive voxel keys) the projection makes misses, by the rule
+    ``projective_blocks`` states, voxel by voxel with numpy (no block or quarter bounds, no
+    tiles): the voxel's centre in the optical frame, as the kernel computes it (block origin +
+    offsets times a voxel step), with z > 0, is nearer than the reach of its pixel or of one of
+    the 8 pixels at the rim of its projection (centre +- ``RIM`` voxel sizes, projected)."""
     h, w = reach.shape
-    ii, jj, kk = np.meshgrid(*(np.arange(box[a] >> 3 << 3, (box[3 + a] >> 3 << 3) + 8) for a in range(3)), indexing="ij")
+    ii, jj, kk = np.meshgrid(*(np.arange(box[a], box[3 + a] + 1) for a in range(3)), indexing="ij")
     ii, jj, kk = ii.ravel(), jj.ravel(), kk.ravel()
     c0 = [((v >> 3) * 8 + 0.5) * res for v in (ii, jj, kk)]  # the block's voxel (0, 0, 0)
     off = [v & 7 for v in (ii, jj, kk)]
@@ -577,13 +577,10 @@ def _reference_misses(reach: np.ndarray, fx, fy, cx, cy, Tinv: np.ndarray, box: 
     return set(zip(ii[free].tolist(), jj[free].tolist(), kk[free].tolist()))
 
 
-@pytest.mark.parametrize("seed", [0, 1, *(pytest.param(s, marks=pytest.mark.slow) for s in range(2, 8))])
-def test_projection_is_the_per_voxel_rule(seed):
-    """Seeded depth images (a wall, boxes at random depths whose edges occlude, holes, pixels
-    beyond max range, both encodings, random intrinsics) from random poses: the blocks' masks
-    ``depth_projection`` lists are exactly the misses of the rule applied voxel by voxel
-    (``_reference_misses``): the block and quarter bounds, the tiles and the kernel's passes only
-    save work."""
+def _random_frame(seed: int) -> tuple:
+    """(image, f, cx, cy, pose, max_range): a seeded depth image (a wall, boxes at random depths
+    whose edges occlude, holes, pixels beyond max range, 16UC1 for even seeds, 32FC1 for odd),
+    random intrinsics and a random pose."""
     rng = np.random.default_rng(100 + seed)
     h, w = int(rng.integers(40, 90)), int(rng.integers(50, 120))
     f = float(rng.uniform(40, 120))
@@ -597,7 +594,54 @@ def test_projection_is_the_per_voxel_rule(seed):
     img = _encoded(depth, float32=bool(seed % 2))
     pose = _random_pose(rng, 0.5)
     cx, cy = (w - 1) / 2 + rng.uniform(-3, 3), (h - 1) / 2 + rng.uniform(-3, 3)
-    _assert_projection_is_the_rule(img, f, cx, cy, pose, max_range)
+    return img, f, cx, cy, pose, max_range
+
+
+@pytest.mark.parametrize("seed", [0, 1, 5, *(pytest.param(s, marks=pytest.mark.slow) for s in (2, 3, 4, 6, 7))])
+def test_projection_is_the_per_voxel_rule(seed):  # (5: misses by the rule in the box's blocks beyond it)
+    """Seeded depth images (``_random_frame``) from random poses: the blocks' masks
+    ``depth_projection`` lists are exactly the misses of the rule applied voxel by voxel
+    (``_reference_misses``) within the frame's voxel box: the block and quarter bounds, the tiles
+    and the kernel's passes only save work."""
+    _assert_projection_is_the_rule(*_random_frame(seed))
+
+
+@pytest.mark.parametrize("seed", [5, 0, 1])  # (5: 39 voxels of the box's blocks beyond it are misses by the rule)
+def test_voxels_read_as_still_and_filled_in_by_the_map_thread_are_the_rule(seed):
+    """A worker that read every voxel of the frame's box as still tests none and leaves each
+    block to the map thread's fill (``projective_refill``), which tests those not still by then
+    (here all): the masks are then exactly the rule's within the frame's voxel box
+    (``_reference_misses``), as when nothing is read as still; the voxels of the box's blocks
+    beyond it (no ray passes them) are left out by the fill as by the worker."""
+    from ltmap_cli.core.grid import BLOCK_BITS, unpack_block
+    from ltmap_cli.core.projective import depth_range_image, ends_box, projective_refill
+
+    img, f, cx, cy, pose, max_range = _random_frame(seed)
+    m = _map()
+    ends, _ = m.depth_rays(img, f, f, cx, cy, pose, max_range)
+    box = ends_box(np.ascontiguousarray(pose[:3, 3]), ends, 1.0 / m.resolution)
+    blocks = np.stack(np.meshgrid(*(np.arange(box[a] >> BLOCK_BITS, (box[3 + a] >> BLOCK_BITS) + 1) for a in range(3)),
+                      indexing="ij"), axis=-1).reshape(-1, 3) << BLOCK_BITS  # fmt: skip
+    o = m.O
+    o.allocate(blocks)  # every block of the box in O, so the worker reads its still voxels
+    qquiet = np.zeros(o.max_blocks, dtype=np.uint8)
+    still = np.full((o.max_blocks, 8), ~np.uint64(0))
+    m._map_seen = lambda: (o.table_keys, o.table_vals, qquiet, still)
+    proj = m.depth_projection(img, f, f, cx, cy, pose, max_range, ends)
+    assert len(proj.keys) == 0 and len(proj.skipped) > 100
+    keys, masks, n = projective_refill(*proj.fill, proj.skipped, proj.skipped_still, o.block_coords, o.n_blocks,
+                                       np.zeros_like(qquiet), np.zeros_like(still), proj.keys, proj.masks)  # fmt: skip
+    assert n == len(proj.skipped)
+    got = set()
+    for key, mask in zip(keys, masks):
+        b = np.array(unpack_block(int(key))) * 8
+        bits = np.nonzero(np.unpackbits(mask.view(np.uint8), bitorder="little"))[0]
+        got.update(zip((b[0] + (bits >> 6)).tolist(), (b[1] + ((bits >> 3) & 7)).tolist(), (b[2] + (bits & 7)).tolist()))
+    R, t = pose[:3, :3], pose[:3, 3]
+    reach = depth_range_image(img, img.dtype == np.uint16, f, f, cx, cy, max_range, m.cfg.sensor.projective_band)[0]
+    want = _reference_misses(reach, f, f, cx, cy, np.hstack([R.T, (-R.T @ t)[:, None]]), box, m.resolution)
+    assert len(want) > 1000
+    assert got == want, f"{len(got - want)} filled in but not misses, {len(want - got)} misses not filled in"
 
 
 def _assert_projection_is_the_rule(img, f, cx, cy, pose, max_range) -> None:

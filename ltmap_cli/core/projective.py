@@ -335,6 +335,29 @@ def _pair_culled(si, sj, sk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, 
 
 
 @njit(cache=True, nogil=True)
+def _box_outside(bi, bj, bk, box, out):
+    """The voxels of block (bi, bj, bk) outside the frame's voxel box ``box`` ([i0, j0, k0, i1,
+    j1, k1], inclusive) as ``_block_fill``'s mask bits into ``out`` (8,); True when it has any.
+    No ray of the frame passes them (a segment's voxels lie in the box of its ends' voxels), so
+    the projection makes none of them misses: the box's blocks reach up to 7 voxels beyond it (a
+    floor's block below it, a wall's behind it), and their voxels were tested for nothing."""
+    i0, i1 = max(box[0] - bi * BLOCK, 0), min(box[3] - bi * BLOCK, BLOCK - 1)
+    j0, j1 = max(box[1] - bj * BLOCK, 0), min(box[4] - bj * BLOCK, BLOCK - 1)
+    k0, k1 = max(box[2] - bk * BLOCK, 0), min(box[5] - bk * BLOCK, BLOCK - 1)
+    if i0 == 0 and j0 == 0 and k0 == 0 and i1 == BLOCK - 1 and j1 == BLOCK - 1 and k1 == BLOCK - 1:
+        for t in range(8):
+            out[t] = 0
+        return False
+    zrow = np.uint64(((1 << (k1 - k0 + 1)) - 1) << k0)
+    inside = np.uint64(0)
+    for c in range(j0, j1 + 1):
+        inside |= zrow << np.uint64(c * BLOCK)
+    for t in range(8):
+        out[t] = ~inside if i0 <= t <= i1 else ~np.uint64(0)
+    return True
+
+
+@njit(cache=True, nogil=True)
 def _fill_scratch():
     """``_block_fill``'s per-voxel rows for a quarter's 64 voxels, allocated once per call of the
     block loop: (4, 64) float64 (squared distance, u, v, 1 / z) and (2, 64) int64 (pixel index,
@@ -479,8 +502,9 @@ def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h
 @njit(cache=True, nogil=True, error_model="numpy")
 def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, band, keys, masks, start,
                       o_keys, o_vals, qquiet, still, skipped, skipped_still, n_skipped):  # fmt: skip
-    """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive)
-    that the projection makes misses, block by block: the block's packed coordinates
+    """The voxels of the frame's box (voxel keys ``box`` = [i0, j0, k0, i1, j1, k1], inclusive;
+    its blocks' voxels beyond it are left out: ``_box_outside``) that the projection makes
+    misses, block by block: the block's packed coordinates
     (``grid.pack_block``) into ``keys`` and its voxels' bits (``grid.voxel_offset`` order) into
     ``masks`` (n, 8), from block number ``start`` of the box (x, y, z order); returns (n, the
     blocks skipped so far, the block to go on from when ``keys`` or ``skipped`` is full, -1 when
@@ -520,6 +544,7 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     lookup = o_keys.shape[0] > 0 and o_keys.shape[0] == o_vals.shape[0]
     n_known = min(qquiet.shape[0], still.shape[0])
     words = np.zeros(8, dtype=np.uint64)
+    outside = np.zeros(8, dtype=np.uint64)
     # the pairs of blocks along each axis (_pair_culled): 0 not known yet, 1 culled, 2 not
     si0, sj0, sk0 = bi0 >> 1, bj0 >> 1, bk0 >> 1
     nsj, nsk = (bj1 >> 1) - sj0 + 1, (bk1 >> 1) - sk0 + 1
@@ -559,6 +584,9 @@ def projective_blocks(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
                 if qskip == QUIET_ALL:
                     continue
         keys[n] = pack_block(bi, bj, bk)
+        if _box_outside(bi, bj, bk, box, outside):  # (left out as still voxels are, not recorded as such)
+            for t in range(8):
+                words[t] |= outside[t]
         if _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes,
                        e, masks[n], fs, ks, qskip, words):  # fmt: skip
             n += 1
@@ -589,18 +617,20 @@ def projective_refill(reach, tmin, tmax, dil, fx, fy, cx, cy, Tinv, box, res, ba
     fs, ks = _fill_scratch()
     keep = np.empty(8, dtype=np.uint64)  # the voxels not to test: all but those to fill in
     out = np.empty(8, dtype=np.uint64)
+    outside = np.empty(8, dtype=np.uint64)
     for t in range(m):
         b, qs, ob = skipped[t, 0] >> SKIP_SHIFT, skipped[t, 0] & QUIET_ALL, skipped[t, 1]
         bi, bj, bk = bi0 + b // (nbj * nbk), bj0 + (b // nbk) % nbj, bk0 + b % nbk
         if not (0 <= ob < n_blocks and o_coords[ob, 0] == bi and o_coords[ob, 1] == bj and o_coords[ob, 2] == bk):
             ob = -1
         qq = np.int64(qquiet[ob]) if ob >= 0 else np.int64(0)
+        _box_outside(bi, bj, bk, box, outside)
         anyb = np.uint64(0)
         for wd in range(8):
             sh = (wd >> 2) << 2
             left = ~QUARTER_KEEP[(qs >> sh) & 15] | skipped_still[t, wd]  # what the worker left out
             fine = ~QUARTER_KEEP[(qq >> sh) & 15] | (still[ob, wd] if ob >= 0 else np.uint64(0))  # may be now
-            keep[wd] = ~(left & ~fine)
+            keep[wd] = ~(left & ~fine) | outside[wd]
             anyb |= ~keep[wd]
         if anyb == 0:
             continue
