@@ -10,7 +10,8 @@ With ``map.sensor.depth_integration: projective`` a depth frame is integrated in
 - farther in front of the returns, by projection: a voxel of the frustum whose centre projects
   onto a pixel with a return (or a clear ray cut at ``max_range``) and is nearer the camera than
   that pixel's range minus ``band``, or one of the pixels at the rim of its projection is, is a
-  miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles). The worker
+  miss (``projective_blocks``, from ``depth_range_image``'s ranges and tiles), within the box
+  of the voxels of the camera and the rays' ends, which holds every voxel a ray passes. The worker
   threads run it, leaving out the quiet O blocks and quarters (4 x 4 x 4 voxels all clamped
   free, no ST or LT) and the still voxels (one such voxel), where a miss changes nothing, as
   they read them from the map while the map thread works on earlier frames; the thread that
