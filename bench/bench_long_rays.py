@@ -251,6 +251,13 @@ def house_yaml() -> str:
     return "\n".join(out) + "\n"
 
 
+def _driven(radius: float, *waypoints: tuple) -> list[str]:
+    """A scenario's robot lines: its radius, the bench's odometry drift, timed waypoints
+    (t, x, y, yaw)."""
+    return ["robot:", f"  radius: {radius:g}", "  odometry_drift: [0.002, 0.001, 0.05]", "  path:", "    waypoints:",
+            *(f"      - {{t: {t:g}, x: {x:.1f}, y: {y:.1f}, yaw: {yaw:g}}}" for t, x, y, yaw in waypoints)]
+
+
 def lidar_yaml() -> str:
     """No camera: a laser-only robot, as many mobile robots log, with a long-range scanner (1080
     beams over 270 deg at 40 Hz, 25 m: a SICK or Hokuyo class lidar) driven down a 30 x 16 m
@@ -267,15 +274,7 @@ def lidar_yaml() -> str:
         "ceiling: 6.0",
         f"duration: {DURATION:g}",
         "seed: 23",
-        "robot:",
-        "  radius: 0.3",
-        "  odometry_drift: [0.002, 0.001, 0.05]",
-        "  path:",
-        "    waypoints:",
-        "      - {t: 0, x: 2.0, y: 8.0, yaw: 0}",
-        "      - {t: 12, x: 14.0, y: 8.0, yaw: 0}",
-        "      - {t: 20, x: 20.0, y: 3.0, yaw: -60}",
-        "      - {t: 30, x: 27.0, y: 8.0, yaw: 60}",
+        *_driven(0.3, (0, 2.0, 8.0, 0), (12, 14.0, 8.0, 0), (20, 20.0, 3.0, -60), (30, 27.0, 8.0, 60)),
         "sensors:",
         "  laser: {beams: 1080, fov: 270, range_max: 25, rate: 40, noise: 0.01, mount: {xyz: [0.2, 0, 0.3]}}",
         "objects:",
@@ -314,17 +313,8 @@ def depot_yaml() -> str:
         "ceiling: 5.0",
         f"duration: {DURATION:g}",
         "seed: 31",
-        "robot:",
-        "  radius: 0.3",
-        "  odometry_drift: [0.002, 0.001, 0.05]",
-        "  path:",
-        "    waypoints:",
-        "      - {t: 0, x: 2.0, y: 8.0, yaw: 0}",
-        "      - {t: 8, x: 10.0, y: 7.0, yaw: 0}",
-        "      - {t: 12, x: 10.5, y: 6.5, yaw: 120}",
-        "      - {t: 18, x: 16.0, y: 4.0, yaw: -30}",
-        "      - {t: 24, x: 22.0, y: 6.0, yaw: 60}",
-        "      - {t: 30, x: 27.0, y: 12.0, yaw: 150}",
+        *_driven(0.3, (0, 2.0, 8.0, 0), (8, 10.0, 7.0, 0), (12, 10.5, 6.5, 120), (18, 16.0, 4.0, -30),
+                 (24, 22.0, 6.0, 60), (30, 27.0, 12.0, 150)),
         "sensors:",
         "  laser: {beams: 1080, fov: 270, range_max: 25, rate: 40, noise: 0.01, mount: {xyz: [0.2, 0, 0.3]}}",
         "  depth: {mount: {xyz: [0.15, 0, 0.9]}, pitch: 3, width: 848, height: 480, fx: 425, rate: 30, noise: 0.003,",
