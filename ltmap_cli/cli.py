@@ -17,7 +17,7 @@ import warnings
 import click
 
 from . import __version__
-from .errors import LtmapError, LtmapWarning
+from .errors import INTERRUPTED, LtmapError, LtmapWarning
 
 # name -> (module, attribute, one-line help shown by `ltmap --help` without importing it)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -80,7 +80,7 @@ class LazyGroup(click.Group):
                 if isinstance(exc.__context__, KeyboardInterrupt):  # Ctrl-C (replay: the second one)
                     click.echo("ltmap: interrupted; nothing was written (an output folder keeps what it held)",
                                err=True)  # fmt: skip
-                    code = 130
+                    code = INTERRUPTED
                 else:
                     click.echo("Aborted!", err=True)
                     code = 1
@@ -163,18 +163,22 @@ def main() -> None:
     """The ``ltmap`` program. After a successful replay the process ends at once (``os._exit``):
     the outputs are written and synced by then (``OutputFolder.commit``), and the interpreter's
     teardown of numba's compiled kernels and the map's arrays took 0.15 to 0.2 s, 3 % of a 30 s
-    log's whole run. Any other outcome exits as usual."""
+    log's whole run. After Ctrl-C too, once every ``finally`` has run (the staging folder removed,
+    the reader closed): the interpreter's exit joins every worker thread, and a second Ctrl-C
+    raised while the map thread was inside a thread pool's own locks could leave one held, its
+    workers blocked on it for ever (a replay hung so at its exit). Any other outcome exits as
+    usual."""
     try:
         cli(prog_name="ltmap")
     except SystemExit as done:
         command = str(getattr(cli, "_invoked", "")).split()[-1:]
-        if done.code in (0, None) and command and command[0] in FAST_EXIT:
+        if (done.code in (0, None) and command and command[0] in FAST_EXIT) or done.code == INTERRUPTED:
             try:
                 sys.stdout.flush()
                 sys.stderr.flush()
             except OSError:  # a closed pipe: exit as usual
                 raise done from None
-            os._exit(0)
+            os._exit(done.code or 0)
         raise
 
 

@@ -37,11 +37,14 @@ class LtmapError(Exception):
     exit_code = 2
 
 
-class RunInterrupted(LtmapError):
-    """The user stopped the run (Ctrl-C) before it had anything to write (exit status 130, the
-    shell's for SIGINT)."""
+INTERRUPTED = 130  # the exit status after Ctrl-C: 128 + SIGINT, as shells give it
 
-    exit_code = 130
+
+class RunInterrupted(LtmapError):
+    """The user stopped the run (Ctrl-C) before it had anything to write (exit status
+    ``INTERRUPTED``)."""
+
+    exit_code = INTERRUPTED
 
 
 class ConfigError(LtmapError):

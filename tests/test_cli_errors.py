@@ -269,6 +269,60 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
         signal.signal(signal.SIGINT, outer)
 
 
+_STUCK_POOL = """
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from ltmap_cli import cli
+from ltmap_cli.pipeline import replay
+
+def run(self):
+    pool = ThreadPoolExecutor(2, thread_name_prefix="stuck")
+    pool.submit(time.sleep, 0.3)
+    pool._idle_semaphore._cond.acquire()  # left held, as a KeyboardInterrupt inside submit() can leave it
+    time.sleep(0.6)  # the worker, its job done, now blocks on it releasing the idle semaphore
+    raise KeyboardInterrupt  # the second Ctrl-C
+
+if sys.argv[3] == "run":
+    replay.Replay.run = run
+else:  # in the replay's own pool of ray workers, at its 5th frame
+    from ltmap_cli.pipeline.executor import OrderedExecutor
+    submit, calls = OrderedExecutor.submit, []
+
+    def stuck_submit(self, *a, **k):
+        calls.append(1)
+        if len(calls) == 5 and self.pool is not None:
+            self.pool.submit(time.sleep, 0.3)
+            self.pool._idle_semaphore._cond.acquire()
+            time.sleep(0.6)
+            raise KeyboardInterrupt
+        return submit(self, *a, **k)
+
+    OrderedExecutor.submit = stuck_submit
+sys.argv = ["ltmap", "replay", sys.argv[1], "-o", sys.argv[2]]
+cli.main()
+"""
+
+
+@pytest.mark.parametrize("where", ["run", "ray workers"])
+def test_a_second_ctrl_c_exits_though_a_worker_thread_is_stuck(tmp_path, where):
+    """A second Ctrl-C raised while the map thread was inside a thread pool's own locks can leave
+    one held; a replay then hung at its exit (the interpreter joins every pool's workers, and
+    one was blocked on that lock for ever; the replay's own pool was waited for first). Made
+    here by holding the lock of a pool's idle semaphore and interrupting, in a pool of its own
+    and in the replay's ray workers: the process ends at once with status 130, the line said,
+    the staging folder removed."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-c", _STUCK_POOL, str(HOUSE_LOG), str(out), where.split()[0]],
+                       capture_output=True, text=True, timeout=60, cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 130, p.stderr
+    assert p.stderr.rstrip().splitlines()[-1] == "ltmap: interrupted; nothing was written (an output folder keeps what it held)"
+    assert [q.name for q in tmp_path.iterdir()] == []  # no staging folder left, no output
+
+
 def test_a_recording_split_into_more_files_than_the_open_file_limit(tmp_path):
     """102 files of one recording (rosbag2 --max-bag-duration 0.2) under a soft limit of 64 open
     files (often 1024, and a day of one-minute splits is 1440 files): replay raises the soft limit

@@ -12,7 +12,7 @@ import click
 from ..analysis.hints import replay_hints
 from ..config import dump_config as dump
 from ..config import load_config, parse_set, set_dotted
-from ..errors import ConfigError
+from ..errors import INTERRUPTED, ConfigError
 from ..outputs.folder import OutputFolder, check_completed_input, listing
 from ..pipeline.replay import Replay, ReplayRequest
 from . import LogTime, StatusLine, allow_open_files, clock, nonempty_output, sensor_options
@@ -250,5 +250,5 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
         click.echo(f"ltmap: interrupted at {stopped:.1f} s of log time (from its first message): {output}/ holds the "
                    f"map up to there; to map the rest, add --start {stopped:g} --resume {output} -o <another folder>",
                    err=True)  # fmt: skip
-        click.get_current_context().exit(130)
+        click.get_current_context().exit(INTERRUPTED)
 

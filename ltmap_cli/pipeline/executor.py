@@ -88,7 +88,11 @@ class OrderedExecutor:
             else:
                 yield payload, job, None
 
-    def close(self) -> None:
+    def close(self, wait: bool = True) -> None:
+        """The workers stopped, the jobs not begun cancelled; ``wait``: their running jobs waited
+        for (False for a run that is failing or interrupted: a second Ctrl-C raised while the
+        map thread was inside the pool's own locks can leave one held, and the workers blocked
+        on it would never be joined)."""
         if self.pool is not None:
-            self.pool.shutdown(wait=True, cancel_futures=True)
+            self.pool.shutdown(wait=wait, cancel_futures=True)
             self.pool = None

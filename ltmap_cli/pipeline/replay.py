@@ -329,6 +329,7 @@ class Replay:
             last_log: dict[str, int] = {}  # ... and its log time
             jumps: dict[str, dict] = {}  # sensor topic -> its first jump back in header stamps (a clock reset)
             last_ns = start_ns
+            failed = True
             try:
                 self._feed_localization(None)
                 for topic, log_ns, item in reader:
@@ -369,10 +370,11 @@ class Replay:
                     self.log_total_s = max((end_ns - start_ns) / NS, 1e-9)
                 elif logs.stats.stopped_at is None:  # the whole log was read: the bar ends at 100 %
                     self._report_progress(end_ns, force=True)
+                failed = False
             finally:
                 reader.close()
                 self._reader_cpu_s = reader.cpu_s
-                self.executor.close()
+                self.executor.close(wait=not failed)
             stats = logs.stats
             inputs = {
                 "topics_used": {"scans": sel.scans, "clouds": sel.clouds, "depth": sel.depths},
