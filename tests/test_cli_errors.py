@@ -276,12 +276,14 @@ from concurrent.futures import ThreadPoolExecutor
 from ltmap_cli import cli
 from ltmap_cli.pipeline import replay
 
-def run(self):
-    pool = ThreadPoolExecutor(2, thread_name_prefix="stuck")
+def stuck(pool):
     pool.submit(time.sleep, 0.3)
     pool._idle_semaphore._cond.acquire()  # left held, as a KeyboardInterrupt inside submit() can leave it
     time.sleep(0.6)  # the worker, its job done, now blocks on it releasing the idle semaphore
     raise KeyboardInterrupt  # the second Ctrl-C
+
+def run(self):
+    stuck(ThreadPoolExecutor(2, thread_name_prefix="stuck"))
 
 if sys.argv[3] == "run":
     replay.Replay.run = run
@@ -292,10 +294,7 @@ else:  # in the replay's own pool of ray workers, at its 5th frame
     def stuck_submit(self, *a, **k):
         calls.append(1)
         if len(calls) == 5 and self.pool is not None:
-            self.pool.submit(time.sleep, 0.3)
-            self.pool._idle_semaphore._cond.acquire()
-            time.sleep(0.6)
-            raise KeyboardInterrupt
+            stuck(self.pool)
         return submit(self, *a, **k)
 
     OrderedExecutor.submit = stuck_submit
