@@ -228,7 +228,9 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
     """The CLI's first Ctrl-C while the log is read stops the reading (``Replay.interrupt``) and
     says the frames read so far are mapped; one after the whole log was read (the last ticks,
     the outputs) stops nothing, the run ends as a complete one (status 0), and says that (it said
-    "mapping the frames read so far" before). The previous SIGINT handler is put back after. In a
+    "mapping the frames read so far" before). A second one raises KeyboardInterrupt and arms the
+    alarm that ends the process if the clean-up takes more than ``HARD_STOP_S``; a clean-up that
+    ends in time disarms it. The previous SIGINT handler is put back after. In a
     process that ignores SIGINT (a job started in the background by a shell), it installs nothing:
     Ctrl-C stays ignored. (Python's own handler is installed first: pytest itself may run with
     SIGINT ignored, as under CI started in the background, and the test failed there.)"""
@@ -237,9 +239,10 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
     import time
     from types import SimpleNamespace
 
-    from ltmap_cli.commands.replay import first_ctrl_c_stops
+    from ltmap_cli.commands.replay import HARD_STOP_S, first_ctrl_c_stops
 
     outer = signal.signal(signal.SIGINT, signal.default_int_handler)
+    alarm = signal.getsignal(signal.SIGALRM)
     try:
         for read_all in (False, True):
             stopped, said = [], []
@@ -250,13 +253,20 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
                     if said:
                         break
                     time.sleep(0.01)
-                assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # a second one stops at once
+                with pytest.raises(KeyboardInterrupt):  # a second one stops at once ...
+                    os.kill(os.getpid(), signal.SIGINT)
+                    time.sleep(2)
+                # ... the clean-up given HARD_STOP_S (a third raises again)
+                assert 0 < signal.getitimer(signal.ITIMER_REAL)[0] <= HARD_STOP_S
+                assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
             assert len(said) == 1 and said[0].endswith("(Ctrl-C again to stop at once; out/ then keeps what it held)")
             if read_all:
                 assert not stopped and said[0].startswith("ltmap: interrupted after the whole log was read: finishing out/")
             else:
                 assert stopped == [True] and said[0].startswith("ltmap: interrupted: mapping the frames read so far")
-            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+            assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # (put back: outer)
+            # the clean-up ended in time: no alarm left to end this process
+            assert signal.getitimer(signal.ITIMER_REAL)[0] == 0 and signal.getsignal(signal.SIGALRM) is alarm
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         stopped, said = [], []
         run = SimpleNamespace(whole_log_read=False, interrupt=lambda: stopped.append(True))
@@ -320,6 +330,64 @@ def test_a_second_ctrl_c_exits_though_a_worker_thread_is_stuck(tmp_path, where):
     assert p.returncode == 130, p.stderr
     assert p.stderr.rstrip().splitlines()[-1] == "ltmap: interrupted; nothing was written (an output folder keeps what it held)"
     assert [q.name for q in tmp_path.iterdir()] == []  # no staging folder left, no output
+
+
+_STUCK_STATE = """
+import sys
+import threading
+from pathlib import Path
+from ltmap_cli import cli
+from ltmap_cli.commands import replay
+from ltmap_cli.outputs import snapshots
+
+replay.HARD_STOP_S = 1.0
+marker = Path(sys.argv[3])
+
+def stuck(path, *a, **k):  # the state's writer thread, stuck as on a disk that hangs
+    marker.touch()
+    threading.Event().wait()
+
+snapshots.write_state = stuck
+sys.argv = ["ltmap", "replay", sys.argv[1], "-o", sys.argv[2], "--no-plots"]
+cli.main()
+"""
+
+
+def test_a_second_ctrl_c_ends_the_process_though_the_clean_up_waits_for_ever(tmp_path):
+    """The clean-up after a second Ctrl-C waits for the replay's threads: the final snapshot's
+    state writer here, stuck as on a disk that hangs (the pool's exit joins it). It hung for ever;
+    now the process ends ``HARD_STOP_S`` (1 s here) after the second Ctrl-C, with status 130 and
+    a line that says so, and the output folder is not made."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out, marker = tmp_path / "out", tmp_path / "stuck"
+    p = subprocess.Popen([sys.executable, "-c", _STUCK_STATE, str(HOUSE_LOG), str(out), str(marker)],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)  # fmt: skip
+    try:
+        t0 = time.monotonic()
+        while not marker.exists():  # (the whole log read, the final snapshot being written)
+            if p.poll() is not None or time.monotonic() - t0 > 120:
+                p.kill()
+                raise AssertionError(p.communicate()[1])
+            time.sleep(0.05)
+        p.send_signal(signal.SIGINT)  # after the whole log was read: finishing
+        time.sleep(0.5)
+        assert p.poll() is None
+        t1 = time.monotonic()
+        p.send_signal(signal.SIGINT)  # at once: the pool's exit waits for the stuck thread
+        _, err = p.communicate(timeout=30)
+        took = time.monotonic() - t1
+    finally:
+        p.kill()
+    assert p.returncode == 130, err
+    assert 0.9 < took < 10, took
+    assert err.rstrip().splitlines()[-1] == (
+        f"ltmap: interrupted; the clean-up did not end within 1 s, so ltmap stopped without it: nothing was "
+        f"written ({out}/ keeps what it held; the next run removes its staging folder)"), err  # fmt: skip
+    assert "Traceback" not in err and not out.exists(), err
 
 
 def test_a_recording_split_into_more_files_than_the_open_file_limit(tmp_path):

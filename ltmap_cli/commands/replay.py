@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import signal
+import sys
 import threading
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 
 import click
@@ -19,6 +21,7 @@ from . import LogTime, StatusLine, allow_open_files, clock, nonempty_output, sen
 
 ETA_AFTER_S = 2.0  # the time left is shown after this much wall time (or 5 % of the log): no wild first guess
 LONG_LOG_S = 3600.0  # a log this long shows its times as clocks (1:02:03.5), as --start / --end take them
+HARD_STOP_S = 5.0  # after a second Ctrl-C the clean-up may take this long; then the process ends without it
 
 
 def time_left(log_left_s: float, speed: float) -> str:
@@ -89,15 +92,20 @@ def first_ctrl_c_stops(run: Replay, say, output: Path):
     mapped and the outputs written as for a log that ended there (``Replay.interrupt``); a second
     one stops at once (KeyboardInterrupt: nothing written, the output folder keeps what it held).
     A first one after the whole log was read (``Replay.whole_log_read``) says so: the run ends as
-    a complete one. Not in a thread other than the main one, nor when SIGINT is ignored (a
-    background job)."""
+    a complete one. The clean-up after a second one (the staging folder removed, the threads
+    stopped) may take ``HARD_STOP_S``: if it waits longer (a thread stuck on a disk that hangs,
+    or on a lock the interrupt left held inside a thread pool), the process ends then anyway,
+    saying so (SIGALRM: a wait for a thread or a lock in the main thread lets its handler run).
+    Not in a thread other than the main one, nor when SIGINT is ignored (a background job)."""
     old = signal.getsignal(signal.SIGINT) if threading.current_thread() is threading.main_thread() else None
     if old is None or old is signal.SIG_IGN:
         yield
         return
+    old_alarm = signal.getsignal(signal.SIGALRM)
+    armed = []
 
     def stop(signum, frame):
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # the second Ctrl-C
+        signal.signal(signal.SIGINT, second)
         again = f"Ctrl-C again to stop at once; {output}/ then keeps what it held"
         if run.whole_log_read:  # (nothing left to stop: the outputs are those of the whole log)
             say(f"ltmap: interrupted after the whole log was read: finishing {output}/ ({again})")
@@ -105,11 +113,28 @@ def first_ctrl_c_stops(run: Replay, say, output: Path):
         run.interrupt()
         say(f"ltmap: interrupted: mapping the frames read so far and writing {output}/ ({again})")
 
+    def second(signum, frame):
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # (a third raises again)
+        signal.signal(signal.SIGALRM, hard_stop)
+        signal.setitimer(signal.ITIMER_REAL, HARD_STOP_S)
+        armed.append(True)
+        raise KeyboardInterrupt
+
+    def hard_stop(signum, frame):  # (no print, no lock: the main thread may hold stderr's)
+        text = (f"ltmap: interrupted; the clean-up did not end within {HARD_STOP_S:g} s, so ltmap stopped without "
+                f"it: nothing was written ({output}/ keeps what it held; the next run removes its staging folder)")
+        with suppress(OSError, ValueError):  # (no stderr to say it on)
+            os.write(sys.stderr.fileno(), ("\n" + text + "\n").encode())
+        os._exit(INTERRUPTED)
+
     signal.signal(signal.SIGINT, stop)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, old)
+        if armed:  # (the clean-up ended in time: the process ends as usual, main())
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, old_alarm)
 
 
 def _xy(text: str, flag: str) -> list[float]:
