@@ -78,8 +78,7 @@ class LazyGroup(click.Group):
                 code = exc.exit_code
             except click.Abort as exc:
                 if isinstance(exc.__context__, KeyboardInterrupt):  # Ctrl-C (replay: the second one)
-                    click.echo("ltmap: interrupted; nothing was written (an output folder keeps what it held)",
-                               err=True)  # fmt: skip
+                    click.echo(INTERRUPTED_LINE, err=True)
                     code = INTERRUPTED
                 else:
                     click.echo("Aborted!", err=True)
@@ -106,6 +105,12 @@ class LazyGroup(click.Group):
                 pass
             ctx.exit(1)
         except Exception as exc:
+            if _unwinding_ctrl_c(exc):  # a clean-up the interrupt broke: still the interrupt (status 1 once, with
+                # numpy's "Cannot compare structured arrays" after a second Ctrl-C)
+                if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
+                    click.echo(traceback.format_exc().rstrip("\n"), err=True)
+                click.echo(INTERRUPTED_LINE, err=True)
+                ctx.exit(INTERRUPTED)
             if not isinstance(exc, (LtmapError, OSError)):
                 cache_error = _kernel_cache_error(exc)
                 if cache_error is None:
@@ -121,6 +126,22 @@ class LazyGroup(click.Group):
                 ctx.exit(2)
             click.echo(f"ltmap: error: {exc}", err=True)
             ctx.exit(exc.exit_code)
+
+
+INTERRUPTED_LINE = "ltmap: interrupted; nothing was written (an output folder keeps what it held)"
+
+
+def _unwinding_ctrl_c(exc: BaseException) -> bool:
+    """Whether ``exc`` was raised while a KeyboardInterrupt was being handled (in its chain of
+    contexts): a ``finally`` or ``except`` that the interrupt left a half-done state to."""
+    seen = set()
+    e = exc.__context__
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__context__
+    return False
 
 
 def _kernel_cache_error(exc: Exception) -> LtmapError | None:

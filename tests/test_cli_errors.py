@@ -332,6 +332,47 @@ def test_a_second_ctrl_c_exits_though_a_worker_thread_is_stuck(tmp_path, where):
     assert [q.name for q in tmp_path.iterdir()] == []  # no staging folder left, no output
 
 
+_BROKEN_CLEAN_UP = """
+import sys
+import numpy as np
+from ltmap_cli import cli
+from ltmap_cli.pipeline import replay
+
+def run(self):
+    try:
+        raise KeyboardInterrupt  # the second Ctrl-C ...
+    finally:  # ... and a clean-up it left a half-done state to
+        if sys.argv[3] == "numpy":  # (the error seen once)
+            np.zeros(1, [("a", "i4")]) == np.zeros(1, [("b", "f4")])
+        else:
+            raise OSError(28, "No space left on device")
+
+replay.Replay.run = run
+debug = ["--debug"] if sys.argv[4] == "debug" else []
+sys.argv = ["ltmap", *debug, "replay", sys.argv[1], "-o", sys.argv[2]]
+cli.main()
+"""
+
+
+@pytest.mark.parametrize("error", ["numpy", "os"])
+@pytest.mark.parametrize("debug", ["", "debug"])
+def test_an_error_in_the_clean_up_after_a_ctrl_c_is_still_the_interrupt(tmp_path, error, debug):
+    """A second Ctrl-C once ended a replay with status 1 and numpy's "Cannot compare structured
+    arrays unless they have a common dtype": a clean-up the interrupt had broken raised its own
+    error. Any error raised while a KeyboardInterrupt unwinds is the interrupt: status 130 and its
+    line (with --debug, the traceback first)."""
+    import subprocess
+    import sys
+
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-c", _BROKEN_CLEAN_UP, str(HOUSE_LOG), str(out), error, debug or "-"],
+                       capture_output=True, text=True, timeout=60, cwd=tmp_path)  # fmt: skip
+    assert p.returncode == 130, p.stderr
+    assert p.stderr.rstrip().splitlines()[-1] == "ltmap: interrupted; nothing was written (an output folder keeps what it held)"
+    assert ("Traceback" in p.stderr) == bool(debug), p.stderr
+    assert [q.name for q in tmp_path.iterdir()] == []
+
+
 _STUCK_STATE = """
 import sys
 import threading
