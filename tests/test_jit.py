@@ -70,3 +70,61 @@ def test_numbas_avx_switch_is_kept():
     out = subprocess.run([sys.executable, "-c", probe], env={**env, "NUMBA_ENABLE_AVX": "0"},
                          capture_output=True, text=True, check=True)  # fmt: skip
     assert out.stdout.strip() == "None"
+
+
+_REFCOUNT_PROBE = """
+import re
+import numpy as np
+from ltmap_cli.jit import helper, njit
+
+@helper()
+def lookup(a, b, i):  # (reads its array arguments, makes none; returns from three places)
+    x = 0.0
+    for k in range(i, min(i + 3, a.shape[0])):
+        if a[k] > 5.0:
+            return x + b[k]
+        x += a[k] * b[k]
+    if x < -2.0:
+        return -x
+    return x
+
+@njit(cache=True, nogil=True)
+def lookup_counted(a, b, i):  # (the same)
+    x = 0.0
+    for k in range(i, min(i + 3, a.shape[0])):
+        if a[k] > 5.0:
+            return x + b[k]
+        x += a[k] * b[k]
+    if x < -2.0:
+        return -x
+    return x
+
+a, b = np.arange(-5.0, 7.0), np.linspace(0.0, 1.0, 12)
+assert all(lookup(a, b, i) == lookup_counted(a, b, i) for i in range(12))
+
+def refs(kernel):  # in the function itself, not in the wrapper Python calls it through
+    ir = kernel.inspect_llvm(kernel.signatures[0])
+    return sum(len(re.findall(r"call void @NRT_(?:incref|decref)", f)) for f in re.split(r"\\ndefine ", ir)[1:]
+               if "cpython." not in f.split("(")[0] and "lookup" in f.split("(")[0])
+
+print(refs(lookup), refs(lookup_counted), lookup.targetoptions.get("nogil"))
+"""
+
+
+def test_helpers_take_no_references_to_their_arrays(tmp_path):
+    """``helper`` compiles a kernel's helper without numba's reference counting: its code has no
+    call to ``NRT_incref`` / ``NRT_decref`` (atomic operations on its arrays' counters at every
+    call, in loops over blocks and quarters: 4 % of a room replay's CPU), where the same function
+    compiled with ``njit`` has some, and it gives the same results (nogil, as every kernel). The
+    core's block lookups and the projection's per-block helpers are such helpers."""
+    probe = tmp_path / "probe.py"  # (numba caches only functions of a file)
+    probe.write_text(_REFCOUNT_PROBE)
+    out = subprocess.run([sys.executable, str(probe)], env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
+                         capture_output=True, text=True, check=True)  # fmt: skip
+    helper_refs, counted_refs, nogil = out.stdout.split()
+    assert int(helper_refs) == 0 and int(counted_refs) > 0 and nogil == "True"
+    from ltmap_cli.core import grid, projective, raycast
+
+    for fn in (grid.find_block, grid.get_or_add_block, projective._classify, projective._block_fill,
+               projective._tail_walks, raycast.ray_starts):  # fmt: skip
+        assert fn.targetoptions.get("_nrt") is False, fn

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit
+from ..jit import helper, njit
 
 BLOCK_BITS = 3
 BLOCK = 1 << BLOCK_BITS  # voxels per block edge
@@ -75,7 +75,7 @@ def voxel_offset(i, j, k):
     return ((i & BLOCK_MASK) << (2 * BLOCK_BITS)) | ((j & BLOCK_MASK) << BLOCK_BITS) | (k & BLOCK_MASK)
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def find_block(table_keys, table_vals, bx, by, bz):
     """Index of block (bx, by, bz) or -1 when it was never allocated."""
     mask = table_keys.shape[0] - 1
@@ -90,7 +90,7 @@ def find_block(table_keys, table_vals, bx, by, bz):
         s = (s + 1) & mask
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def get_or_add_block(table_keys, table_vals, block_coords, meta, bx, by, bz):
     """Index of block (bx, by, bz), allocating it if needed; -1 when the pool is full."""
     mask = table_keys.shape[0] - 1

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..jit import njit
+from ..jit import helper, njit
 from .grid import BLOCK, BLOCK_BITS, BLOCK_MASK, band_k_range, find_block, voxel_offset
 
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
@@ -254,7 +254,7 @@ def static_fills(lmap, cols: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def _o_column_occupied(table_keys, table_vals, logodds, stamp, since, i, j, k_lo, k_hi):
     bx = i >> BLOCK_BITS
     by = j >> BLOCK_BITS

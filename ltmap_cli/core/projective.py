@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit
+from ..jit import helper, njit
 from .grid import BLOCK, BLOCK_BITS, BLOCK_VOXELS, find_block, pack_block, unpack_block, voxel_offset
 from .raycast import (
     QUARTER_KEEP,
@@ -191,7 +191,7 @@ def _pyramid(t0, use_max):
     return pyr
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def _tiles_query(pyr, u0, u1, v0, v1, use_max):
     """The greatest (``use_max`` != 0; else the least) range over pixels [u0, u1] x [v0, v1]
     (clipped to the image), bounded from the pyramid: over at most 9 x 9 tiles of the finest level
@@ -215,7 +215,7 @@ def _tiles_query(pyr, u0, u1, v0, v1, use_max):
 CULLED, FRONT, MIXED = 0, 1, 2
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@helper(error_model="numpy")
 def _classify(qx, qy, qz, nvox, ex0, ex1, ex2, ey0, ey1, ey2, ez0, ez1, ez2, res, band, far, fx, fy, cx, cy, w, h,
               planes, tmin, tmax):  # fmt: skip
     """(class, lo, hi) of a cube of ``nvox`` voxels a side centred at (qx, qy, qz) (optical
@@ -298,7 +298,7 @@ def _frame_setup(tmax, fx, fy, cx, cy, w, h, Tinv, res, band):
     return far, planes, e
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@helper(error_model="numpy")
 def _cube_class(bi, bj, bk, nvox, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far, planes, e):
     """(class, px0, py0, pz0) of the cube of ``nvox`` voxels a side from block (bi, bj, bk)'s
     voxel (0, 0, 0): ``_classify``'s class of it, and the centre of that voxel in the optical
@@ -322,13 +322,13 @@ def _cube_class(bi, bj, bk, nvox, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, b
     return cls, px0, py0, pz0
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@helper(error_model="numpy")
 def _block_class(bi, bj, bk, tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far, planes, e):
     """``_cube_class`` of block (bi, bj, bk)."""
     return _cube_class(bi, bj, bk, np.int64(BLOCK), tmin, tmax, fx, fy, cx, cy, w, h, Tinv, res, band, far, planes, e)
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def _box_outside(bi, bj, bk, box, out):
     """The voxels of block (bi, bj, bk) outside the frame's voxel box ``box`` ([i0, j0, k0, i1,
     j1, k1], inclusive) as ``_block_fill``'s mask bits into ``out`` (8,); True when it has any.
@@ -359,7 +359,7 @@ def _fill_scratch():
     return np.empty((4, 64)), np.empty((2, 64), dtype=np.int64)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@helper(error_model="numpy")
 def _block_fill(cls, px0, py0, pz0, reach, tmin, tmax, dil, fx, fy, cx, cy, w, h, res, band, far, planes, e, mask,
                 fs, ks, qskip, still):  # fmt: skip
     """The miss bits of a FRONT or MIXED block into ``mask`` (8,), but for its quarters in
@@ -745,7 +745,7 @@ def _rows_in_key_order(slot, keys, masks, m, w0):
     return out_keys[:t], out_masks[:t]
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def _new_row(idx, box_blocks, slot, keys, masks, m):
     """``tail_masks``' row ``m`` made for block number ``idx`` of the box (``box_blocks``: its
     first block and its blocks along each axis), empty; returns the rows now made (m + 1). (Not
@@ -766,7 +766,7 @@ NOT_WALKED = -1  # _tail_walks' record of a ray that walks no more
 TAIL_CHUNK = 32
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@helper(error_model="numpy")
 def _tail_walks(af, ai, n, box_blocks, rec, max_steps, max_it):
     """The DDA walks of a chunk of ``n`` rays (``ray_starts``' buffers ``af``, ``ai``, updated
     in place) in lockstep: at iteration ``it`` every ray that still walks records its voxel in

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..jit import njit
+from ..jit import helper, njit
 from .grid import (
     _PACK_BITS,
     BLOCK_BITS,
@@ -144,7 +144,7 @@ def classify_rays(origin, points, returns, max_range, ground_tol, fp_inv, fp_min
 SEEN_PAD = 4  # the dense bitmap's box: the ends and the origin, and this many voxels around
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def _seen_setup(origin, ends, kind, inv_res, seen, seen_meta):
     """Lay this frame's ``seen`` bitmap over the box of voxels its rays can visit (their ends
     and the origin, padded) and clear it. ``seen_meta`` = [dense on, i0, j0, k0, nx, ny, nz,
@@ -272,7 +272,7 @@ def ray_start_buffers():
     return np.empty(RS_ROWS * RAY_CHUNK, dtype=np.float64), np.empty(RS_ROWS * RAY_CHUNK, dtype=np.int32)
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@helper(error_model="numpy")
 def ray_starts(ends, r0, n, ox, oy, oz, ki0, kj0, kk0, inv_res, res, tail, af, ai):
     """The Amanatides & Woo DDA's start for rays ``r0`` to ``r0 + n`` (n <= ``RAY_CHUNK``) from
     (ox, oy, oz) (voxel (ki0, kj0, kk0)) to ``ends``, OctoMap's ``computeRayKeys`` arithmetic,
@@ -736,7 +736,7 @@ def apply_voxels_kernel(
     return STATUS_DONE, 2, 0
 
 
-@njit(cache=True, nogil=True)
+@helper()
 def _quiet_quarters(b, want, nfree, block_coords, d_keys, d_vals, st, lt):
     """Of the quarters ``want`` (bits) of O block b, those quiet: all 64 voxels clamped free
     (``nfree[b, q] == 64``) and none with ST or LT (no D block there, or its voxels' ST and LT 0
