@@ -20,8 +20,11 @@ import os
 
 from numba import njit
 from numba.core import config
+from numba.core.cpu import CPUTargetOptions
 
 __all__ = ["helper", "njit", "vector_features"]
+
+_NO_REFCOUNT = {"_nrt": False} if hasattr(CPUTargetOptions, "_nrt") else {}  # (numba's private option: helper)
 
 # LLVM's names of the CPUs whose 512-bit instructions lower the clock (Skylake-SP and its
 # successors before Ice Lake; Xeon Phi): LLVM's 256-bit preference stands there
@@ -37,8 +40,8 @@ def helper(**options):
     over blocks and quarters. Without them the projection took 0.87x to 0.89x its time (room,
     hall and depot frames) and the ray workers 0.94x their CPU, with the same maps. numba refuses
     to compile such a helper if it makes an array; it may take views of its arguments, which live
-    longer than the call."""
-    return njit(cache=True, nogil=True, _nrt=False, **options)
+    longer than the call. (A numba without that option compiles them as ``njit`` does.)"""
+    return njit(cache=True, nogil=True, **_NO_REFCOUNT, **options)
 
 
 def vector_features(cpu_name: str, features: str, env) -> str | None:
