@@ -18,7 +18,6 @@ import click
 
 from . import __version__
 from .errors import INTERRUPTED, LtmapError, LtmapWarning
-from .startup import pause_gc, resume_gc
 
 # name -> (module, attribute, one-line help shown by `ltmap --help` without importing it)
 COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -92,8 +91,6 @@ class LazyGroup(click.Group):
         name, cmd, rest = super().resolve_command(ctx, args)
         if cmd is not None:
             self._invoked = f"{ctx.command_path} {cmd.name or name}"
-        if cmd is None or cmd.name not in GC_PAUSED_TO_WARM_UP:  # (its module imported: the command runs next)
-            resume_gc()
         return name, cmd, rest
 
     def invoke(self, ctx: click.Context):
@@ -181,7 +178,6 @@ def cli(ctx: click.Context, debug: bool) -> None:
 
 
 FAST_EXIT = ("replay",)  # commands whose process ends without the interpreter's teardown once they succeed
-GC_PAUSED_TO_WARM_UP = ("replay",)  # commands that resume the garbage collector themselves (startup.resume_gc)
 
 
 def main() -> None:
@@ -193,7 +189,6 @@ def main() -> None:
     raised while the map thread was inside a thread pool's own locks could leave one held, its
     workers blocked on it for ever (a replay hung so at its exit). Any other outcome exits as
     usual."""
-    pause_gc()
     try:
         cli(prog_name="ltmap")
     except SystemExit as done:

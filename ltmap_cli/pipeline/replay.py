@@ -36,7 +36,6 @@ from ..io.logs import open_logs
 from ..io.static_layer import load_static_input
 from ..io.transforms import TfBuffer
 from ..outputs.snapshots import load_resume
-from ..startup import resume_gc
 from ..static.memory import lattice_bytes
 from ..viz.plots import MAX_HISTORY_EVENTS
 from .clock import Ticker
@@ -224,7 +223,6 @@ class Replay:
                 s.abort()
             raise
         finally:
-            resume_gc()  # (a run that ended before its first frame)
             if self._compile is not None:
                 self._compile.stop()
             if self._loading is not None:
@@ -646,7 +644,6 @@ class Replay:
                 self._loading.common.result()
             else:  # (the depth kernels: at their first frame)
                 warm_up(self.cfg.map, replay_groups(self.cfg.replay, lists=self._lists))
-        resume_gc()  # (paused by the ltmap program while it started)
 
     def _warm_lists(self) -> None:
         """A scan whose box may be too big for masks (``warmup.scan_box_blocks``: a level laser
