@@ -40,7 +40,9 @@ def helper(**options):
     over blocks and quarters. Without them the projection took 0.87x to 0.89x its time (room,
     hall and depot frames) and the ray workers 0.94x their CPU, with the same maps. numba refuses
     to compile such a helper if it makes an array; it may take views of its arguments, which live
-    longer than the call. (A numba without that option compiles them as ``njit`` does.)"""
+    longer than the call, but must not return an array, not even an argument as it came (numba
+    accepts that, and the caller's reference counts are then wrong: a heap corrupted in a trial).
+    (A numba without that option compiles them as ``njit`` does.)"""
     return njit(cache=True, nogil=True, **_NO_REFCOUNT, **options)
 
 

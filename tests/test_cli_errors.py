@@ -224,13 +224,14 @@ def test_ctrl_c_maps_what_was_read_and_a_second_one_writes_nothing(tmp_path):
     assert [q.name for q in tmp_path.iterdir()] == ["out"]  # no staging folder left behind
 
 
-def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
+def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so(monkeypatch):
     """The CLI's first Ctrl-C while the log is read stops the reading (``Replay.interrupt``) and
     says the frames read so far are mapped; one after the whole log was read (the last ticks,
     the outputs) stops nothing, the run ends as a complete one (status 0), and says that (it said
     "mapping the frames read so far" before). A second one raises KeyboardInterrupt and arms the
-    alarm that ends the process if the clean-up takes more than ``HARD_STOP_S``; a clean-up that
-    ends in time disarms it. The previous SIGINT handler is put back after. In a
+    ``HardStop`` that ends the process if the clean-up takes more than ``HARD_STOP_S``; a clean-up
+    that ends in time (the HardStop's context left) stops its watcher. The previous SIGINT
+    handler is put back after. In a
     process that ignores SIGINT (a job started in the background by a shell), it installs nothing:
     Ctrl-C stays ignored. (Python's own handler is installed first: pytest itself may run with
     SIGINT ignored, as under CI started in the background, and the test failed there.)"""
@@ -239,34 +240,37 @@ def test_a_ctrl_c_after_the_whole_log_was_read_stops_nothing_and_says_so():
     import time
     from types import SimpleNamespace
 
-    from ltmap_cli.commands.replay import HARD_STOP_S, first_ctrl_c_stops
+    from ltmap_cli.commands import replay as command
+    from ltmap_cli.commands.replay import HardStop, first_ctrl_c_stops
 
+    monkeypatch.setattr(command, "HARD_STOP_S", 120.0)  # (this test's process must outlive a slow run of it)
     outer = signal.signal(signal.SIGINT, signal.default_int_handler)
-    alarm = signal.getsignal(signal.SIGALRM)
     try:
         for read_all in (False, True):
             stopped, said = [], []
             run = SimpleNamespace(whole_log_read=read_all, interrupt=lambda stopped=stopped: stopped.append(True))
-            with first_ctrl_c_stops(run, said.append, Path("out")):
+            hard_stop = HardStop(Path("out"))
+            with hard_stop, first_ctrl_c_stops(run, said.append, Path("out"), hard_stop):
                 os.kill(os.getpid(), signal.SIGINT)
                 for _ in range(200):  # (the handler runs in this thread, between two bytecodes)
                     if said:
                         break
                     time.sleep(0.01)
+                assert not hard_stop.armed
                 with pytest.raises(KeyboardInterrupt):  # a second one stops at once ...
                     os.kill(os.getpid(), signal.SIGINT)
                     time.sleep(2)
                 # ... the clean-up given HARD_STOP_S (a third raises again)
-                assert 0 < signal.getitimer(signal.ITIMER_REAL)[0] <= HARD_STOP_S
+                assert hard_stop.armed and hard_stop._thread.is_alive()
                 assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+            # the clean-up ended in time: the watcher stopped, nothing left to end this process
+            assert not hard_stop.armed and not hard_stop._thread.is_alive()
             assert len(said) == 1 and said[0].endswith("(Ctrl-C again to stop at once; out/ then keeps what it held)")
             if read_all:
                 assert not stopped and said[0].startswith("ltmap: interrupted after the whole log was read: finishing out/")
             else:
                 assert stopped == [True] and said[0].startswith("ltmap: interrupted: mapping the frames read so far")
             assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # (put back: outer)
-            # the clean-up ended in time: no alarm left to end this process
-            assert signal.getitimer(signal.ITIMER_REAL)[0] == 0 and signal.getsignal(signal.SIGALRM) is alarm
         signal.signal(signal.SIGINT, signal.SIG_IGN)
         stopped, said = [], []
         run = SimpleNamespace(whole_log_read=False, interrupt=lambda: stopped.append(True))
@@ -373,52 +377,70 @@ def test_an_error_in_the_clean_up_after_a_ctrl_c_is_still_the_interrupt(tmp_path
     assert [q.name for q in tmp_path.iterdir()] == []
 
 
-_STUCK_STATE = """
+_STUCK_CLEAN_UP = """
 import sys
 import threading
+import time
 from pathlib import Path
 from ltmap_cli import cli
 from ltmap_cli.commands import replay
-from ltmap_cli.outputs import snapshots
+from ltmap_cli.outputs import folder, snapshots
 
 replay.HARD_STOP_S = 1.0
-marker = Path(sys.argv[3])
+marker, where = Path(sys.argv[3]), sys.argv[4]
 
-def stuck(path, *a, **k):  # the state's writer thread, stuck as on a disk that hangs
+def stuck(*a, **k):  # as on a disk that hangs
     marker.touch()
     threading.Event().wait()
 
-snapshots.write_state = stuck
+if where == "state":  # the final snapshot's state writer (the pool's exit waits for it)
+    snapshots.write_state = stuck
+else:  # the staging folder's removal, after the run
+    def run(self):
+        marker.touch()
+        while True:  # (the second Ctrl-C raises in here)
+            time.sleep(0.05)
+
+    replay.Replay.run = run
+    folder.shutil.rmtree = stuck
 sys.argv = ["ltmap", "replay", sys.argv[1], "-o", sys.argv[2], "--no-plots"]
 cli.main()
 """
 
 
-def test_a_second_ctrl_c_ends_the_process_though_the_clean_up_waits_for_ever(tmp_path):
-    """The clean-up after a second Ctrl-C waits for the replay's threads: the final snapshot's
-    state writer here, stuck as on a disk that hangs (the pool's exit joins it). It hung for ever;
-    now the process ends ``HARD_STOP_S`` (1 s here) after the second Ctrl-C, with status 130 and
-    a line that says so, and the output folder is not made."""
+@pytest.mark.parametrize("where", ["state", "staging"])
+def test_a_second_ctrl_c_ends_the_process_though_the_clean_up_waits_for_ever(tmp_path, where):
+    """The clean-up after a second Ctrl-C waits for the replay's threads (the final snapshot's
+    state writer here, stuck as on a disk that hangs: the pool's exit joins it) and removes the
+    staging folder (stuck too). It hung for ever; now the process ends ``HARD_STOP_S`` (1 s here)
+    after the second Ctrl-C, with status 130 and a line that says so, and the output folder is
+    not made."""
     import signal
     import subprocess
     import sys
     import time
 
     out, marker = tmp_path / "out", tmp_path / "stuck"
-    p = subprocess.Popen([sys.executable, "-c", _STUCK_STATE, str(HOUSE_LOG), str(out), str(marker)],
+    p = subprocess.Popen([sys.executable, "-c", _STUCK_CLEAN_UP, str(HOUSE_LOG), str(out), str(marker), where],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)  # fmt: skip
     try:
         t0 = time.monotonic()
-        while not marker.exists():  # (the whole log read, the final snapshot being written)
+        while not marker.exists():  # (the run stuck, or running)
             if p.poll() is not None or time.monotonic() - t0 > 120:
                 p.kill()
                 raise AssertionError(p.communicate()[1])
             time.sleep(0.05)
-        p.send_signal(signal.SIGINT)  # after the whole log was read: finishing
+        p.send_signal(signal.SIGINT)  # the first: finishing, or stopping the reading
         time.sleep(0.5)
         assert p.poll() is None
+        if where == "staging":
+            marker.unlink()
         t1 = time.monotonic()
-        p.send_signal(signal.SIGINT)  # at once: the pool's exit waits for the stuck thread
+        p.send_signal(signal.SIGINT)  # at once: the clean-up waits
+        if where == "staging":
+            while not marker.exists():  # (the staging folder's removal reached)
+                assert time.monotonic() - t1 < 30
+                time.sleep(0.05)
         _, err = p.communicate(timeout=30)
         took = time.monotonic() - t1
     finally:

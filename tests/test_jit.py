@@ -123,8 +123,17 @@ def test_helpers_take_no_references_to_their_arrays(tmp_path):
                          capture_output=True, text=True, check=True)  # fmt: skip
     helper_refs, counted_refs, nogil = out.stdout.split()
     assert int(helper_refs) == 0 and int(counted_refs) > 0 and nogil == "True"
-    from ltmap_cli.core import grid, projective, raycast
+    import ast
+    import importlib
+    from pathlib import Path
 
-    for fn in (grid.find_block, grid.get_or_add_block, projective._classify, projective._block_fill,
-               projective._tail_walks, raycast.ray_starts):  # fmt: skip
-        assert fn.targetoptions.get("_nrt") is False, fn
+    import ltmap_cli.core
+
+    found = []
+    for path in sorted(Path(ltmap_cli.core.__file__).parent.glob("*.py")):
+        mod = importlib.import_module(f"ltmap_cli.core.{path.stem}")
+        for fn in ast.walk(ast.parse(path.read_text())):
+            if isinstance(fn, ast.FunctionDef) and any(ast.unparse(d).startswith("helper(") for d in fn.decorator_list):
+                found.append(fn.name)
+                assert getattr(mod, fn.name).targetoptions.get("_nrt") is False, fn.name
+    assert {"find_block", "get_or_add_block", "_classify", "_block_fill", "_tail_walks", "ray_starts"} <= set(found)

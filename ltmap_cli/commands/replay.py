@@ -86,23 +86,71 @@ class ProgressBar(StatusLine):
         self.show(line, new)
 
 
+class HardStop:
+    """After a second Ctrl-C (``arm``, from ``first_ctrl_c_stops``), the clean-up (the run's
+    threads stopped, its staging folder removed, the output folder's lock let go) may take
+    ``HARD_STOP_S``; if it waits longer (a thread stuck on a disk that hangs, a lock the
+    interrupt left held inside a thread pool, the staging folder's removal), a watcher thread
+    ends the process then anyway, saying so, with status 130: a thread of its own, since the
+    main thread may be the one stuck (a signal's handler would not run in a system call). The
+    next run removes the staging folder left. Leaving the context (the clean-up done) stops the
+    watcher. Its line is written from another thread that it waits for a second at most, as a
+    stderr that no one reads (a pipe paused in ``less``) would block the write."""
+
+    def __init__(self, output: Path):
+        self.output = output
+        self._armed = threading.Event()
+        self._done = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def __enter__(self) -> HardStop:
+        self._thread = threading.Thread(target=self._watch, name="ltmap-hard-stop", daemon=True)
+        self._thread.start()
+        return self
+
+    def arm(self) -> None:
+        """(A signal handler's call: the main thread never holds this event's lock otherwise.)"""
+        self._armed.set()
+
+    @property
+    def armed(self) -> bool:
+        return self._armed.is_set() and not self._done.is_set()
+
+    def __exit__(self, *exc) -> None:
+        self._done.set()
+        self._armed.set()  # (wakes the watcher, which then ends)
+        if self._thread is not None:
+            self._thread.join()
+
+    def _watch(self) -> None:
+        self._armed.wait()
+        if self._done.wait(HARD_STOP_S):
+            return
+        text = (f"ltmap: interrupted; the clean-up did not end within {HARD_STOP_S:g} s, so ltmap stopped without "
+                f"it: nothing was written ({self.output}/ keeps what it held; the next run removes its staging folder)")
+        say = threading.Thread(target=_write_stderr, args=("\n" + text + "\n",), daemon=True)
+        say.start()
+        say.join(1.0)
+        os._exit(INTERRUPTED)
+
+
+def _write_stderr(text: str) -> None:
+    with suppress(OSError, ValueError):  # (no stderr to say it on)
+        os.write(sys.stderr.fileno(), text.encode())
+
+
 @contextmanager
-def first_ctrl_c_stops(run: Replay, say, output: Path):
+def first_ctrl_c_stops(run: Replay, say, output: Path, hard_stop: HardStop | None = None):
     """While in it, a first Ctrl-C (SIGINT) stops reading the log: the frames read so far are
     mapped and the outputs written as for a log that ended there (``Replay.interrupt``); a second
-    one stops at once (KeyboardInterrupt: nothing written, the output folder keeps what it held).
-    A first one after the whole log was read (``Replay.whole_log_read``) says so: the run ends as
-    a complete one. The clean-up after a second one (the staging folder removed, the threads
-    stopped) may take ``HARD_STOP_S``: if it waits longer (a thread stuck on a disk that hangs,
-    or on a lock the interrupt left held inside a thread pool), the process ends then anyway,
-    saying so (SIGALRM: a wait for a thread or a lock in the main thread lets its handler run).
-    Not in a thread other than the main one, nor when SIGINT is ignored (a background job)."""
+    one stops at once (KeyboardInterrupt: nothing written, the output folder keeps what it held),
+    and arms ``hard_stop`` (the clean-up's time bound). A first one after the whole log was read
+    (``Replay.whole_log_read``) says so: the run ends as a complete one. Not in a thread other
+    than the main one, nor when SIGINT is ignored (a background job)."""
     old = signal.getsignal(signal.SIGINT) if threading.current_thread() is threading.main_thread() else None
     if old is None or old is signal.SIG_IGN:
         yield
         return
-    old_alarm = signal.getsignal(signal.SIGALRM)
-    armed = []
 
     def stop(signum, frame):
         signal.signal(signal.SIGINT, second)
@@ -115,26 +163,15 @@ def first_ctrl_c_stops(run: Replay, say, output: Path):
 
     def second(signum, frame):
         signal.signal(signal.SIGINT, signal.default_int_handler)  # (a third raises again)
-        signal.signal(signal.SIGALRM, hard_stop)
-        signal.setitimer(signal.ITIMER_REAL, HARD_STOP_S)
-        armed.append(True)
+        if hard_stop is not None:
+            hard_stop.arm()
         raise KeyboardInterrupt
-
-    def hard_stop(signum, frame):  # (no print, no lock: the main thread may hold stderr's)
-        text = (f"ltmap: interrupted; the clean-up did not end within {HARD_STOP_S:g} s, so ltmap stopped without "
-                f"it: nothing was written ({output}/ keeps what it held; the next run removes its staging folder)")
-        with suppress(OSError, ValueError):  # (no stderr to say it on)
-            os.write(sys.stderr.fileno(), ("\n" + text + "\n").encode())
-        os._exit(INTERRUPTED)
 
     signal.signal(signal.SIGINT, stop)
     try:
         yield
     finally:
         signal.signal(signal.SIGINT, old)
-        if armed:  # (the clean-up ended in time: the process ends as usual, main())
-            signal.setitimer(signal.ITIMER_REAL, 0)
-            signal.signal(signal.SIGALRM, old_alarm)
 
 
 def _xy(text: str, flag: str) -> list[float]:
@@ -241,13 +278,14 @@ def replay(logs, output, force, static, resume, config_file, dump_config, fixed_
     bar = None if quiet else ProgressBar()
     # first the output folder (lock, checks, staging): a bad -o must not cost a whole replay
     check_completed_input(static, "--static", "give its static.yaml, or build it again with ltmap build-static")
-    with OutputFolder(output, command="replay", force=force) as out:
+    with HardStop(output) as hard_stop, OutputFolder(output, command="replay", force=force) as out:
         out.refuse_inputs_inside(logs, "LOG")
         out.refuse_inputs_inside([static], "--static")
         request = ReplayRequest(list(logs), out.staging, static=static, resume=resume, final_dir=out.final)
         run = Replay(cfg, request, progress=bar)
         try:
-            with first_ctrl_c_stops(run, bar.note if bar is not None else lambda t: click.echo(t, err=True), output):
+            with first_ctrl_c_stops(run, bar.note if bar is not None else lambda t: click.echo(t, err=True), output,
+                                    hard_stop):  # fmt: skip
                 report = run.run()
         finally:
             if bar is not None:
