@@ -134,7 +134,8 @@ def counts(lmap, f, ends, kind) -> dict:
     fx, fy, cx, cy = f["k"]
     d, unit_mm = _depth_view(f["depth"])
     band = float(lmap.cfg.sensor.projective_band)
-    reach, tmin, tmax, _ = pj.depth_range_image(d, unit_mm, fx, fy, cx, cy, f["max_range"], band)
+    reach, tmin, tmax, _ = pj.depth_range_image(d, unit_mm, pj.pixel_range_factors(*d.shape, fx, fy, cx, cy),
+                                                f["max_range"], band)  # fmt: skip
     T = f["T"]
     R, t = T[:3, :3], T[:3, 3]
     Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
@@ -169,7 +170,7 @@ def time_parts(frames: list[dict], rounds: int) -> tuple[dict, dict]:
             fn(*args)
             spent[name] += time.perf_counter() - c
         c = time.perf_counter()
-        depth_range_image(d, unit_mm, fx, fy, cx, cy, f["max_range"], float(sc.projective_band))
+        depth_range_image(d, unit_mm, lmap._range_factors(d.shape, fx, fy, cx, cy), f["max_range"], float(sc.projective_band))
         spent["range_image"] += time.perf_counter() - c
         lmap._map_seen = lambda seen=f["seen"]: seen
         c = time.perf_counter()

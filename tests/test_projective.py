@@ -477,7 +477,7 @@ def test_range_image_and_tiles_against_numpy(shape, encoding):
     the image is not a multiple of 8) the least and greatest range, and up the pyramid, 2 x 2
     tiles of the level below."""
     from ltmap_cli.core.layers import _depth_view
-    from ltmap_cli.core.projective import TILE, depth_range_image
+    from ltmap_cli.core.projective import TILE, depth_range_image, pixel_range_factors
 
     h, w = shape
     rng = np.random.default_rng(h * w)
@@ -498,7 +498,7 @@ def test_range_image_and_tiles_against_numpy(shape, encoding):
     r = np.minimum(zf.astype(np.float64) * np.sqrt(1 + ((u - cx) / f) ** 2 + ((v - cy) / f) ** 2), 8.0)
     r = np.where(valid, r.astype(np.float32), np.float32(-1.0)).astype(np.float32)
     depth, unit_mm = _depth_view(raw)
-    reach, tmin, tmax, _ = depth_range_image(depth, unit_mm, f, f, cx, cy, 8.0, band)
+    reach, tmin, tmax, _ = depth_range_image(depth, unit_mm, pixel_range_factors(*depth.shape, f, f, cx, cy), 8.0, band)
     np.testing.assert_allclose(reach, r - np.float32(band), rtol=1e-6, atol=1e-6)
     th, tw = -(-h // TILE), -(-w // TILE)
     lo, hi = r.copy(), r.copy()
@@ -522,7 +522,7 @@ def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
     only its pixel reaches that far; "lo": every pixel's depth is the same (beyond 25 m, where
     the voxel's rim lies within its pixel: the pixels around have longer ranges)."""
     from ltmap_cli.core.grid import pack_block, voxel_offset
-    from ltmap_cli.core.projective import depth_range_image, projective_blocks
+    from ltmap_cli.core.projective import depth_range_image, pixel_range_factors, projective_blocks
 
     res, f, k0 = 0.05, 500.0, 1000
     z32 = np.float32(z)
@@ -534,7 +534,7 @@ def test_quarter_bounds_are_exactly_the_voxel_tests(mode, band, z):
     depth[7, 7] = z32  # the pixel the voxel (0, 0, k0) projects onto: its centre is on the optical axis
     t = np.array([0.5 * res, 0.5 * res, (k0 + 0.5) * res - dist])
     Tinv = np.ascontiguousarray(np.hstack([np.eye(3), -t[:, None]]))
-    img, tmin, tmax, dil = depth_range_image(depth, False, f, f, 7.0, 7.0, 0.0, band)
+    img, tmin, tmax, dil = depth_range_image(depth, False, pixel_range_factors(*depth.shape, f, f, 7.0, 7.0), 0.0, band)
     assert np.float64(img[7, 7]) == reach
     box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
@@ -614,7 +614,7 @@ def test_voxels_read_as_still_and_filled_in_by_the_map_thread_are_the_rule(seed)
     (``_reference_misses``), as when nothing is read as still; the voxels of the box's blocks
     beyond it (no ray passes them) are left out by the fill as by the worker."""
     from ltmap_cli.core.grid import BLOCK_BITS, unpack_block
-    from ltmap_cli.core.projective import depth_range_image, ends_box, projective_refill
+    from ltmap_cli.core.projective import depth_range_image, ends_box, pixel_range_factors, projective_refill
 
     img, f, cx, cy, pose, max_range = _random_frame(seed)
     m = _map()
@@ -638,7 +638,8 @@ def test_voxels_read_as_still_and_filled_in_by_the_map_thread_are_the_rule(seed)
         bits = np.nonzero(np.unpackbits(mask.view(np.uint8), bitorder="little"))[0]
         got.update(zip((b[0] + (bits >> 6)).tolist(), (b[1] + ((bits >> 3) & 7)).tolist(), (b[2] + (bits & 7)).tolist()))
     R, t = pose[:3, :3], pose[:3, 3]
-    reach = depth_range_image(img, img.dtype == np.uint16, f, f, cx, cy, max_range, m.cfg.sensor.projective_band)[0]
+    reach = depth_range_image(img, img.dtype == np.uint16, pixel_range_factors(*img.shape, f, f, cx, cy), max_range,
+                              m.cfg.sensor.projective_band)[0]  # fmt: skip
     want = _reference_misses(reach, f, f, cx, cy, np.hstack([R.T, (-R.T @ t)[:, None]]), box, m.resolution)
     assert len(want) > 1000
     assert got == want, f"{len(got - want)} filled in but not misses, {len(want - got)} misses not filled in"
@@ -648,7 +649,7 @@ def _assert_projection_is_the_rule(img, f, cx, cy, pose, max_range) -> None:
     """The voxels ``depth_projection``'s block masks hold are exactly ``_reference_misses``'
     (the rule applied voxel by voxel), and they are many."""
     from ltmap_cli.core.grid import unpack_block
-    from ltmap_cli.core.projective import depth_range_image
+    from ltmap_cli.core.projective import depth_range_image, pixel_range_factors
 
     m = _map()
     ends, _ = m.depth_rays(img, f, f, cx, cy, pose, max_range)
@@ -660,7 +661,8 @@ def _assert_projection_is_the_rule(img, f, cx, cy, pose, max_range) -> None:
         got.update(zip((b[0] + (bits >> 6)).tolist(), (b[1] + ((bits >> 3) & 7)).tolist(), (b[2] + (bits & 7)).tolist()))
     R, t = pose[:3, :3], pose[:3, 3]
     Tinv = np.hstack([R.T, (-R.T @ t)[:, None]])
-    reach = depth_range_image(img, img.dtype == np.uint16, f, f, cx, cy, max_range, m.cfg.sensor.projective_band)[0]
+    reach = depth_range_image(img, img.dtype == np.uint16, pixel_range_factors(*img.shape, f, f, cx, cy), max_range,
+                              m.cfg.sensor.projective_band)[0]  # fmt: skip
     want = _reference_misses(reach, f, f, cx, cy, Tinv, proj.box, m.resolution)
     assert len(want) > 1000
     assert got == want, f"{len(got - want)} listed but not misses, {len(want - got)} misses not listed"
@@ -693,14 +695,14 @@ def test_rim_pixels_stand_for_rays_through_the_voxel(far_from, miss):
     it, and it is not (the rim at +-0.5 voxel, rounded to a pixel, took pixel 23: a voxel under
     a table top's far edge was cleared so)."""
     from ltmap_cli.core.grid import pack_block, voxel_offset
-    from ltmap_cli.core.projective import depth_range_image, projective_blocks
+    from ltmap_cli.core.projective import depth_range_image, pixel_range_factors, projective_blocks
 
     res, f, band, k0 = 0.05, 100.0, 0.2, 1000
     depth = np.full((41, 41), 600, dtype=np.uint16)  # the occluder, 0.6 m out
     depth[:, far_from:] = 3000  # the background
     t = np.array([0.5 * res, 0.5 * res, (k0 + 0.5) * res - 1.0])  # voxel (0, 0, k0)'s centre at (0, 0, 1)
     Tinv = np.ascontiguousarray(np.hstack([np.eye(3), -t[:, None]]))
-    img, tmin, tmax, dil = depth_range_image(depth, True, f, f, 20.0, 20.0, 8.0, band)
+    img, tmin, tmax, dil = depth_range_image(depth, True, pixel_range_factors(*depth.shape, f, f, 20.0, 20.0), 8.0, band)
     box = np.array([-8, -8, k0 - 8, 8, 8, k0 + 8], dtype=np.int64)
     keys, masks = np.empty(64, dtype=np.int64), np.zeros((64, 8), dtype=np.uint64)
     skipped = np.empty((64, 2), dtype=np.int64)
@@ -948,3 +950,51 @@ def test_tail_misses_as_masks_leave_the_map_of_the_listed_tails(monkeypatch):
     assert a.D.channel("st").max() > 0  # the box's obstacle reached ST
     ta, tb = a.events.transitions, b.events.transitions
     assert len(ta) == len(tb)
+
+
+@pytest.mark.parametrize("encoding", ["16UC1", "32FC1"])
+def test_range_factors_give_the_ranges_bit_for_bit(encoding):
+    """``pixel_range_factors`` (a pixel's ray length per metre of depth, made once per camera)
+    times the depth is the range ``depth_range_image`` computed per frame before (z * sqrt(1 +
+    x^2 + y^2) in float64, x = (u - cx) / fx, y = (v - cy) / fy, then float32): every bit, for
+    random calibrations and images, so the projection's decisions are the same."""
+    from ltmap_cli.core.layers import _depth_view
+    from ltmap_cli.core.projective import depth_range_image, pixel_range_factors
+
+    rng = np.random.default_rng(17)
+    for _ in range(4):
+        h, w = int(rng.integers(5, 90)), int(rng.integers(5, 130))
+        fx, fy = rng.uniform(40.0, 900.0, 2)
+        cx, cy = rng.uniform(-5.0, w + 5.0), rng.uniform(-5.0, h + 5.0)
+        z = rng.uniform(0.05, 20.0, (h, w))
+        if encoding == "16UC1":
+            raw = np.round(z * 1000).astype(np.uint16)
+            zf = (raw.astype(np.float32) * np.float32(0.001)).astype(np.float64)
+        else:
+            raw = z.astype(np.float32)
+            zf = raw.astype(np.float64)
+        xx = 1.0 + ((np.arange(w, dtype=np.float64) - cx) / fx) ** 2
+        yy = ((np.arange(h, dtype=np.float64) - cy) / fy) ** 2
+        want = np.minimum(zf * np.sqrt(xx[None, :] + yy[:, None]), 9.0).astype(np.float32) - np.float32(0.2)
+        depth, unit_mm = _depth_view(raw)
+        fac = pixel_range_factors(h, w, fx, fy, cx, cy)
+        assert fac.shape == (h, w) and fac.dtype == np.float64
+        reach = depth_range_image(depth, unit_mm, fac, 9.0, 0.2)[0]
+        assert np.array_equal(reach, want)
+
+
+def test_a_map_keeps_each_cameras_range_factors():
+    """``LayeredMap._range_factors``: made once per calibration and image size and kept (the same
+    array for the next frame), another camera's beside it, the oldest let go beyond
+    ``RANGE_FACTORS_KEPT``."""
+    from ltmap_cli.core.layers import RANGE_FACTORS_KEPT, LayeredMap
+
+    m = LayeredMap()
+    a = m._range_factors((48, 64), 50.0, 50.0, 31.5, 23.5)
+    assert m._range_factors((48, 64), 50.0, 50.0, 31.5, 23.5) is a
+    b = m._range_factors((48, 64), 50.0, 50.0, 30.0, 23.5)
+    assert b is not a and not np.array_equal(a, b)
+    for k in range(RANGE_FACTORS_KEPT):
+        m._range_factors((10, 10 + k), 9.0, 9.0, 5.0, 5.0)
+    assert len(m._range_factors_kept) == RANGE_FACTORS_KEPT
+    assert m._range_factors((48, 64), 50.0, 50.0, 31.5, 23.5) is not a  # (let go, made again)

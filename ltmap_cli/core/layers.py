@@ -44,6 +44,7 @@ from .projective import (
     TAIL_OVERLAP_VOXELS,
     depth_projection_blocks,
     ends_box,
+    pixel_range_factors,
     projective_blocks,
     projective_refill,
     tail_masks,
@@ -596,6 +597,7 @@ KEY_LIMIT = (1 << 20) - 2  # voxel keys within +-KEY_LIMIT: the packed keys of t
 # hold 21 bits per axis (block keys: 21 bits of block coordinates), so farther voxels would collide
 
 
+RANGE_FACTORS_KEPT = 4  # depth cameras (calibration, image size) whose pixel_range_factors a map keeps
 MAX_PLAIN_RANGE = 1000.0  # m: a max_range up to this bounds the reach of a frame's rays as it is
 
 
@@ -754,6 +756,8 @@ class LayeredMap:
         self._tb_meta = np.zeros(1, dtype=np.int64)
         # per thread: the frame's "updated already" bitmap of frame_voxels, grown on demand
         self._scratch = threading.local()
+        self._range_factors_kept: dict[tuple, np.ndarray] = {}  # (_range_factors)
+        self._range_factors_lock = threading.Lock()
         self.seen_max_words = SEEN_MAX_WORDS  # a frame whose box needs more goes without it
         self.static: StaticGrid | None = None
         self.set_static(static)
@@ -884,8 +888,9 @@ class LayeredMap:
         Tinv = np.ascontiguousarray(np.hstack([R.T, (-R.T @ t)[:, None]]))
         band = float(self.cfg.sensor.projective_band)
         seen = self._map_seen()
+        fac = self._range_factors(depth.shape, float(fx), float(fy), float(cx), float(cy))
         keys, masks, n, skipped, sstill, ns, nxt, reach, tmin, tmax, dil, box = depth_projection_blocks(
-            depth, unit_mm, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(t), Tinv,
+            depth, unit_mm, fac, float(fx), float(fy), float(cx), float(cy), np.ascontiguousarray(t), Tinv,
             float(max_range), band, ends, self.resolution, PROJECTIVE_CHUNK_BLOCKS, *seen,
         )  # fmt: skip
         while nxt >= 0:  # the arrays are full: twice the room, and on from the block it stopped at
@@ -904,6 +909,21 @@ class LayeredMap:
             return FrameMasks(keys, masks, box)
         return FrameMasks(keys, masks, box, skipped, sstill, (reach, tmin, tmax, dil, float(fx), float(fy), float(cx),
                                                               float(cy), Tinv, box, self.resolution, band))  # fmt: skip
+
+    def _range_factors(self, shape: tuple[int, int], fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+        """The camera's ``pixel_range_factors``, made once per calibration and image size (8 bytes
+        a pixel: 2.5 MB for 640x480), the last ``RANGE_FACTORS_KEPT`` kept. (Worker threads may
+        make the same one at once: the same array either way.)"""
+        key = (int(shape[0]), int(shape[1]), fx, fy, cx, cy)
+        fac = self._range_factors_kept.get(key)
+        if fac is None:
+            fac = pixel_range_factors(key[0], key[1], fx, fy, cx, cy)
+            with self._range_factors_lock:
+                kept = self._range_factors_kept
+                while len(kept) >= RANGE_FACTORS_KEPT:
+                    del kept[next(iter(kept))]
+                kept[key] = fac
+        return fac
 
     def _map_seen(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """What the workers' projection reads of the map to leave out the misses that change
