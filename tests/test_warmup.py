@@ -635,7 +635,7 @@ def test_kernels_cached_follows_the_source_text_not_its_time(tmp_path):
                 "from ltmap_cli.core import projective\n"
                 "print(kernels_cached(), projective.__file__)\n"
                 + ("projective.ends_box(np.zeros(3), np.ones((2, 3)), 20.0)\n" if compile_one or compile_two else "")
-                + ("projective.depth_range_image(np.ones((16, 16), np.uint16), True, 9.0, 9.0, 8.0, 8.0, 8.0, 0.2)\n"
+                + ("projective.depth_range_image(np.ones((16, 16), np.uint16), True, np.ones((16, 16)), 8.0, 0.2)\n"
                    if compile_two else ""))  # fmt: skip
         run_env = env if features is None else {**env, "NUMBA_CPU_FEATURES": features}
         out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=run_env, check=True,
