@@ -72,33 +72,25 @@ def test_numbas_avx_switch_is_kept():
     assert out.stdout.strip() == "None"
 
 
+_LOOKUP = """
+@{decorator}
+def {name}(a, b, i):  # (reads its array arguments, makes none; returns from three places)
+    x = 0.0
+    for k in range(i, min(i + 3, a.shape[0])):
+        if a[k] > 5.0:
+            return x + b[k]
+        x += a[k] * b[k]
+    if x < -2.0:
+        return -x
+    return x
+"""
+
 _REFCOUNT_PROBE = """
 import re
 import numpy as np
 from ltmap_cli.jit import helper, njit
-
-@helper()
-def lookup(a, b, i):  # (reads its array arguments, makes none; returns from three places)
-    x = 0.0
-    for k in range(i, min(i + 3, a.shape[0])):
-        if a[k] > 5.0:
-            return x + b[k]
-        x += a[k] * b[k]
-    if x < -2.0:
-        return -x
-    return x
-
-@njit(cache=True, nogil=True)
-def lookup_counted(a, b, i):  # (the same)
-    x = 0.0
-    for k in range(i, min(i + 3, a.shape[0])):
-        if a[k] > 5.0:
-            return x + b[k]
-        x += a[k] * b[k]
-    if x < -2.0:
-        return -x
-    return x
-
+{helper_lookup}
+{counted_lookup}
 a, b = np.arange(-5.0, 7.0), np.linspace(0.0, 1.0, 12)
 assert all(lookup(a, b, i) == lookup_counted(a, b, i) for i in range(12))
 
@@ -117,8 +109,10 @@ def test_helpers_take_no_references_to_their_arrays(tmp_path):
     call, in loops over blocks and quarters: 4 % of a room replay's CPU), where the same function
     compiled with ``njit`` has some, and it gives the same results (nogil, as every kernel). The
     core's block lookups and the projection's per-block helpers are such helpers."""
-    probe = tmp_path / "probe.py"  # (numba caches only functions of a file)
-    probe.write_text(_REFCOUNT_PROBE)
+    probe = tmp_path / "probe.py"  # (numba caches only functions of a file; one function each, the same body)
+    probe.write_text(_REFCOUNT_PROBE.format(helper_lookup=_LOOKUP.format(decorator="helper()", name="lookup"),
+                                            counted_lookup=_LOOKUP.format(decorator="njit(cache=True, nogil=True)",
+                                                                          name="lookup_counted")))  # fmt: skip
     out = subprocess.run([sys.executable, str(probe)], env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
                          capture_output=True, text=True, check=True)  # fmt: skip
     helper_refs, counted_refs, nogil = out.stdout.split()
