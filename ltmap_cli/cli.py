@@ -77,7 +77,7 @@ class LazyGroup(click.Group):
                 click.echo(f"ltmap: error: {' '.join(exc.format_message().split())}", err=True)
                 code = exc.exit_code
             except click.Abort as exc:
-                if isinstance(exc.__context__, KeyboardInterrupt):  # Ctrl-C (replay: the second one)
+                if _unwinding_ctrl_c(exc):  # Ctrl-C (replay: the second one)
                     click.echo(INTERRUPTED_LINE, err=True)
                     code = INTERRUPTED
                 else:
@@ -105,13 +105,10 @@ class LazyGroup(click.Group):
                 pass
             ctx.exit(1)
         except Exception as exc:
-            if _unwinding_ctrl_c(exc):  # a clean-up the interrupt broke: still the interrupt (status 1 once, with
-                # numpy's "Cannot compare structured arrays" after a second Ctrl-C)
-                if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
-                    click.echo(traceback.format_exc().rstrip("\n"), err=True)
-                click.echo(INTERRUPTED_LINE, err=True)
-                ctx.exit(INTERRUPTED)
-            if not isinstance(exc, (LtmapError, OSError)):
+            # raised by a clean-up the interrupt broke: still the interrupt (status 1 once, with
+            # numpy's "Cannot compare structured arrays" after a second Ctrl-C)
+            interrupted = _unwinding_ctrl_c(exc)
+            if not interrupted and not isinstance(exc, (LtmapError, OSError)):
                 cache_error = _kernel_cache_error(exc)
                 if cache_error is None:
                     raise
@@ -119,6 +116,9 @@ class LazyGroup(click.Group):
             if (ctx.obj or {}).get("debug") or os.environ.get("LTMAP_DEBUG"):
                 # the traceback, then the same line and the same exit status as without --debug
                 click.echo(traceback.format_exc().rstrip("\n"), err=True)
+            if interrupted:
+                click.echo(INTERRUPTED_LINE, err=True)
+                ctx.exit(INTERRUPTED)
             if isinstance(exc, OSError):  # a file system failure no check foresaw (permission, disk full)
                 where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
                 click.echo(f"ltmap: error: {where}{exc.strerror or exc}; check the path, its permissions and "
